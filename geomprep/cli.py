@@ -1,0 +1,250 @@
+"""The ``geomprep`` command line: fetch objects, build their assets, inspect them."""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from pathlib import Path
+
+import click
+
+from geomprep import builtin, fetch, pipeline
+from geomprep.config import Config, load_config
+from geomprep.errors import GeomprepError
+
+STAGE_HELP = {
+    "mesh": "Load, clean, check units, centre at the centre of mass, attach the mass.",
+    "decompose": "Convex decomposition (CoACD) into small collision hulls.",
+    "mjcf": "Write the MuJoCo model and check that it settles on a plane.",
+    "sdf": "Signed-distance grid (200^3 over [-0.5, 0.5]^3 m by default).",
+    "bbox": "Oriented bounding box along the principal axes.",
+    "sq": "Superquadric fit.",
+    "pc": "32/128/512 well-spread surface points with normals.",
+}
+
+
+class Context:
+    def __init__(self, config_path: Path | None, data_dir: Path | None) -> None:
+        self.config_path = config_path
+        self.data_dir = data_dir
+
+    @property
+    def cfg(self) -> Config:
+        return load_config(self.config_path, self.data_dir)
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.option(
+    "--data-dir",
+    type=click.Path(path_type=Path, file_okay=False),
+    envvar="GEOMPREP_DATA_DIR",
+    help="Data directory (raw/, interim/, processed/). Default: ./data, or data_dir in the config.",
+)
+@click.option(
+    "--config",
+    "config_path",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="TOML file overriding stage parameters. Default: ./geomprep.toml if present.",
+)
+@click.option("-v", "--verbose", is_flag=True, help="Log every stage as it finishes.")
+@click.pass_context
+def cli(ctx: click.Context, data_dir: Path | None, config_path: Path | None, verbose: bool) -> None:
+    """Turn object meshes into simulation-ready, geometry-annotated assets.
+
+    \b
+    Typical use:
+      geomprep build-all                       # the built-in object set, no download
+      geomprep fetch --from ~/ycb && geomprep build-all --objects ycb
+      geomprep sdf 032_knife                   # one stage of one object
+      geomprep show 032_knife                  # summary + PNG preview
+
+    Every stage caches on a hash of its inputs and parameters: rerunning is cheap and a killed
+    build resumes where it stopped.
+    """
+    logging.basicConfig(
+        level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(message)s"
+    )
+    logging.getLogger("trimesh").setLevel(logging.ERROR)
+    ctx.obj = Context(config_path, data_dir)
+
+
+@cli.command()
+@click.option(
+    "--from",
+    "source_dir",
+    type=click.Path(path_type=Path, file_okay=False),
+    help="Import a local directory (YCB layout NAME/google_16k/textured.obj, or NAME.obj|.ply|.stl "
+    "files) instead of downloading.",
+)
+@click.option("--objects", default=None, help="Comma-separated names (default: all available).")
+@click.option(
+    "--masses",
+    type=click.Path(path_type=Path, dir_okay=False, exists=True),
+    help="CSV 'object,mass_kg'. Default: masses.csv inside --from, if any.",
+)
+@click.option("--density", type=float, default=None, help="kg/m^3 for objects with no mass listed.")
+@click.option("--force", is_flag=True, help="Re-import objects that are already complete.")
+@click.option("--url", default=fetch.YCB_BASE_URL, show_default=True, help="YCB archive server.")
+@click.pass_obj
+def fetch_cmd(
+    obj: Context,
+    source_dir: Path | None,
+    objects: str | None,
+    masses: Path | None,
+    density: float | None,
+    force: bool,
+    url: str,
+) -> None:
+    """Download the YCB google_16k models (resumable, verified) or import a local directory.
+
+    With no --from, downloads from the YCB server (all 78 objects unless --objects). Built-in
+    object names (builtin_box, ...) in --objects are written from code instead.
+    """
+    cfg = obj.cfg
+    names = [n.strip() for n in objects.split(",") if n.strip()] if objects else None
+    density = density if density is not None else cfg.mesh.density_kg_m3
+    done: list[str] = []
+    if names is not None:  # built-in objects are written, not fetched
+        builtin_names = [n for n in names if n in builtin.NAMES]
+        pipeline.ensure_builtin(cfg, builtin_names)
+        done += builtin_names
+        names = [n for n in names if n not in builtin.NAMES]
+        if not names and source_dir is None:
+            click.echo(f"{len(done)} objects ready in {cfg.raw_dir}")
+            return
+    if source_dir is not None:
+        done += fetch.import_directory(
+            source_dir, cfg.raw_dir, names, density_kg_m3=density, masses_csv=masses, force=force
+        )
+    else:
+        done += fetch.fetch_ycb(
+            cfg.raw_dir, names, base_url=url, masses_csv=masses, density_kg_m3=density, force=force
+        )
+    click.echo(f"{len(done)} objects ready in {cfg.raw_dir}")
+
+
+@cli.command("list")
+@click.option("--available", is_flag=True, help="List the YCB objects that 'fetch' can download.")
+@click.pass_obj
+def list_cmd(obj: Context, available: bool) -> None:
+    """Show the objects and the status of each stage (done / stale / missing)."""
+    if available:
+        for name in fetch.YCB_OBJECTS:
+            click.echo(name)
+        return
+    cfg = obj.cfg
+    names = pipeline.resolve_objects(cfg, "all")
+    stages = [*pipeline.STAGES, "pack"]
+    width = max(len(n) for n in names)
+    click.echo(f"{'object':<{width}}  " + " ".join(f"{s:<9}" for s in stages))
+    marks = {"done": "done", "stale": "stale", "missing": "-"}
+    for name in names:
+        status = pipeline.stage_status(cfg, name)
+        click.echo(f"{name:<{width}}  " + " ".join(f"{marks[status[s]]:<9}" for s in stages))
+
+
+def _report(report: pipeline.BuildReport, elapsed: float) -> None:
+    computed = len(report.seconds)
+    click.echo(
+        f"{computed} stages computed, {len(report.skipped)} cached, "
+        f"{len(report.failed)} objects failed, in {elapsed:.1f} s"
+    )
+    for name, error in sorted(report.failed.items()):
+        click.echo(f"error: {name}: {error}", err=True)
+    if report.failed:
+        sys.exit(1)
+
+
+@cli.command("build-all")
+@click.option(
+    "--objects",
+    default="all",
+    show_default=True,
+    help="Comma-separated names or sets: all, builtin, ycb (imported YCB objects).",
+)
+@click.option("--jobs", "-j", type=int, default=None, help="Parallel processes (default: all cores).")
+@click.option("--force", is_flag=True, help="Recompute even stages whose cache is current.")
+@click.option("--no-progress", is_flag=True, help="No progress bar (for logs).")
+@click.pass_obj
+def build_all(obj: Context, objects: str, jobs: int | None, force: bool, no_progress: bool) -> None:
+    """Run every stage for every object, then pack data/processed/<name>.h5."""
+    cfg = obj.cfg
+    start = time.perf_counter()
+    names = pipeline.resolve_objects(cfg, objects)
+    report = pipeline.build(cfg, names, jobs=jobs, force=force, progress=not no_progress)
+    _report(report, time.perf_counter() - start)
+
+
+def _stage_command(stage: str) -> click.Command:
+    @click.command(stage, help=f"{STAGE_HELP[stage]} Runs missing inputs first; repacks if it can.")
+    @click.argument("names", nargs=-1, required=True)
+    @click.option("--force", is_flag=True, help="Recompute even if the cache is current.")
+    @click.pass_obj
+    def command(obj: Context, names: tuple[str, ...], force: bool) -> None:
+        cfg = obj.cfg
+        start = time.perf_counter()
+        resolved = pipeline.resolve_objects(cfg, list(names))
+        report = pipeline.build(cfg, resolved, stages=[stage], jobs=1, force=force, progress=False)
+        # Keep processed/<name>.h5 in step when every other stage is already there.
+        packable = [
+            n
+            for n in resolved
+            if n not in report.failed
+            and all(v == "done" for s, v in pipeline.stage_status(cfg, n).items() if s != "pack")
+        ]
+        if packable:
+            packed = pipeline.build(cfg, packable, stages=["pack"], jobs=1, progress=False)
+            report.seconds.update(packed.seconds)
+        for name in resolved:
+            click.echo(f"{name}: {pipeline.stage_path(cfg, name, stage)}")
+        _report(report, time.perf_counter() - start)
+
+    return command
+
+
+for _stage in pipeline.STAGES:
+    cli.add_command(_stage_command(_stage))
+cli.add_command(fetch_cmd, "fetch")
+
+
+@cli.command()
+@click.argument("name")
+@click.option(
+    "--out",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="PNG path. Default: data/previews/<name>.png.",
+)
+@click.pass_obj
+def show(obj: Context, name: str, out: Path | None) -> None:
+    """Print a summary of an object's artifacts and write a PNG preview."""
+    from geomprep import preview
+
+    cfg = obj.cfg
+    pipeline.resolve_objects(cfg, [name])
+    path = pipeline.stage_path(cfg, name, "pack")
+    if not path.is_file():
+        raise GeomprepError(f"'{name}' is not built yet: run 'geomprep build-all --objects {name}'")
+    click.echo(preview.summary(path))
+    out = out or cfg.data_dir / "previews" / f"{name}.png"
+    preview.render(path, out)
+    click.echo(f"preview: {out}")
+
+
+def main() -> None:
+    """Entry point: run the CLI, turning GeomprepError into a one-line message and exit 1."""
+    try:
+        cli.main(standalone_mode=False)
+    except GeomprepError as exc:
+        click.echo(f"error: {exc}", err=True)
+        sys.exit(1)
+    except click.exceptions.Abort:
+        click.echo("aborted", err=True)
+        sys.exit(130)
+    except click.ClickException as exc:
+        exc.show()
+        sys.exit(exc.exit_code)
+
+
+if __name__ == "__main__":
+    main()

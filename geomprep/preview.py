@@ -1,0 +1,130 @@
+"""``geomprep show``: a text summary of a packed object file and a PNG preview.
+
+The preview has five panels side by side, all in the object frame with equal axes: the mesh,
+the collision hulls, the oriented bounding box, the superquadric and the 512-point cloud, plus
+a slice of the SDF through the origin.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from geomprep import decompose, store, superquadric
+
+
+def summary(path: Path) -> str:
+    """Human-readable lines: mass, size, hulls, box, superquadric, SDF and settle facts."""
+    with h5py.File(path, "r") as f:
+        m = f["mesh"].attrs
+        vertices = f["mesh/vertices"][()]
+        span = np.ptp(vertices, axis=0) * 1000
+        d = f["decomposition"].attrs
+        j = f["mjcf"].attrs
+        b = f["bbox"]
+        s = f["superquadric"]
+        params = s["params"][()]
+        g = f["sdf"]
+        grid_attrs = dict(g.attrs)
+        lines = [
+            f"object      {f.attrs.get('object', path.stem)}   ({path})",
+            f"mesh        {len(vertices)} vertices, {len(f['mesh/faces'])} faces, "
+            f"{span[0]:.1f} x {span[1]:.1f} x {span[2]:.1f} mm, watertight={bool(m['watertight'])}",
+            f"mass        {float(m['mass_kg']) * 1000:.1f} g ({m['mass_source']}), "
+            f"volume {float(m['volume_m3']) * 1e6:.1f} cm^3, COM by {m['com_method']}",
+            f"hulls       {int(d['n_hulls'])} (max {int(d['max_hull_vertices'])} vertices), "
+            f"{float(d['covered_fraction_1mm']) * 100:.1f}% of vertices within 1 mm",
+            f"mjcf        {j['xml']}: settled at {float(j['settle_final_height_m']) * 1000:.1f} mm, "
+            f"speed {float(j['settle_final_speed_m_s']) * 1000:.2f} mm/s",
+            f"bbox        extents {np.round(b['extents'][()] * 1000, 1).tolist()} mm, "
+            f"{float(b.attrs['contained_fraction']) * 100:.1f}% of vertices inside",
+            f"superquad.  eps {params[0]:.2f}, {params[1]:.2f}; "
+            f"semi-axes {np.round(params[2:5] * 1000, 1).tolist()} mm",
+            f"sdf         {g['grid'].shape}, voxel {float(grid_attrs['voxel_size']) * 1000:.2f} mm, "
+            f"min {float(g['grid'][()].min()) * 1000:.1f} mm, "
+            f"{path.stat().st_size / 1e6:.1f} MB file",
+            f"pointcloud  {', '.join(k for k in f['pointcloud'] if k.startswith('pc'))}",
+        ]
+    return "\n".join(lines)
+
+
+def _box_edges(center: np.ndarray, rotation: np.ndarray, extents: np.ndarray) -> list[np.ndarray]:
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * extents / 2
+    corners = corners @ rotation.T + center
+    pairs = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1]
+    return [corners[[a, b]] for a, b in pairs]
+
+
+def render(path: Path, out: Path) -> None:
+    """Write the preview PNG for a packed object file."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    mesh_arrays, _ = store.read_group(path, "mesh")
+    hull_arrays, _ = store.read_group(path, "decomposition")
+    box, _ = store.read_group(path, "bbox")
+    sq, _ = store.read_group(path, "superquadric")
+    pc, _ = store.read_group(path, "pointcloud")
+    with h5py.File(path, "r") as f:
+        grid = f["sdf/grid"]
+        sdf_slice = grid[:, grid.shape[1] // 2, :]
+        lo, hi = f["sdf"].attrs["bounds_min"], f["sdf"].attrs["bounds_max"]
+    vertices, faces = mesh_arrays["vertices"], mesh_arrays["faces"]
+    radius = float(np.abs(vertices).max()) * 1.15
+
+    fig = plt.figure(figsize=(22, 4.6))
+    titles = ["mesh", "convex hulls", "oriented bbox", "superquadric", "point cloud (512)"]
+    axes = [fig.add_subplot(1, 6, k + 1, projection="3d") for k in range(5)]
+    for ax, title in zip(axes, titles, strict=True):
+        ax.set_title(title)
+        ax.set_xlim(-radius, radius)
+        ax.set_ylim(-radius, radius)
+        ax.set_zlim(-radius, radius)
+        ax.set_box_aspect((1, 1, 1))
+        ax.set_axis_off()
+
+    step = max(1, len(faces) // 4000)  # matplotlib is slow beyond a few thousand polygons
+    mesh_poly = Poly3DCollection(vertices[faces[::step]], facecolor="0.7", edgecolor="none")
+    axes[0].add_collection3d(mesh_poly)
+    colors = plt.get_cmap("tab20")
+    for k, (hv, hf) in enumerate(decompose.unpack_hulls(hull_arrays)):
+        axes[1].add_collection3d(
+            Poly3DCollection(hv[hf], facecolor=colors(k % 20), edgecolor="k", linewidth=0.1, alpha=0.8)
+        )
+    for ax in axes[2:4]:
+        ax.add_collection3d(Poly3DCollection(vertices[faces[:: step * 2]], facecolor="0.8", alpha=0.3))
+    for edge in _box_edges(box["center"], box["rotation"], box["extents"]):
+        axes[2].plot(*edge.T, color="tab:red")
+    params = sq["params"].astype(np.float64)
+    surface = superquadric.sample_surface(params, 1500)
+    axes[3].scatter(*surface.T, s=1, color="tab:green")
+    points = pc["pc512"]
+    axes[4].scatter(*points.T, s=4, c=points[:, 2], cmap="viridis")
+
+    ax = fig.add_subplot(1, 6, 6)
+    ax.set_title("SDF, y = 0 slice (mm)")
+    image = ax.imshow(
+        sdf_slice.T * 1000, origin="lower", extent=(lo[0], hi[0], lo[2], hi[2]), cmap="RdBu"
+    )
+    ax.contour(
+        np.linspace(lo[0], hi[0], sdf_slice.shape[0]),
+        np.linspace(lo[2], hi[2], sdf_slice.shape[1]),
+        sdf_slice.T,
+        levels=[0.0],
+        colors="k",
+    )
+    ax.set_xlim(-radius * 2, radius * 2)
+    ax.set_ylim(-radius * 2, radius * 2)
+    fig.colorbar(image, ax=ax, shrink=0.8)
+    fig.suptitle(path.stem)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with store.atomic_path(out) as tmp:
+        fig.savefig(tmp, dpi=80, format="png")
+    plt.close(fig)
+
