@@ -21,11 +21,19 @@ from geomprep.config import Config
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--ycb-dir", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "ycb")
-    parser.add_argument("--objects", default="10", help="a count (first N YCB objects) or a comma list")
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--ycb-dir", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "ycb"
+    )
+    parser.add_argument(
+        "--objects", default="10", help="a count (first N YCB objects) or a comma list"
+    )
     parser.add_argument("--jobs", type=int, default=os.cpu_count())
-    parser.add_argument("--data-dir", type=Path, default=None, help="default: a temporary directory")
+    parser.add_argument(
+        "--data-dir", type=Path, default=None, help="default: a temporary directory"
+    )
     args = parser.parse_args()
 
     if args.objects.isdigit():
@@ -56,7 +64,10 @@ def main() -> None:
     print(f"failed: {report.failed or 'none'}")
     print(f"cold build: {cold:.1f} s wall ({cold / len(names):.1f} s per object)")
     print(f"projected for 78 objects: {cold / len(names) * 78 / 60:.1f} min (target < 20 min)")
-    print(f"no-change rerun: {warm:.2f} s ({len(rerun.skipped)} stages cached, {len(rerun.seconds)} computed)")
+    print(
+        f"no-change rerun: {warm:.2f} s ({len(rerun.skipped)} stages cached, "
+        f"{len(rerun.seconds)} computed)"
+    )
     print(f"ratio cold / cached rerun: {cold / warm:.0f}x")
 
 

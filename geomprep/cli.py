@@ -163,7 +163,9 @@ def _report(report: pipeline.BuildReport, elapsed: float) -> None:
     show_default=True,
     help="Comma-separated names or sets: all, builtin, ycb (imported YCB objects).",
 )
-@click.option("--jobs", "-j", type=int, default=None, help="Parallel processes (default: all cores).")
+@click.option(
+    "--jobs", "-j", type=int, default=None, help="Parallel processes (default: all cores)."
+)
 @click.option("--force", is_flag=True, help="Recompute even stages whose cache is current.")
 @click.option("--no-progress", is_flag=True, help="No progress bar (for logs).")
 @click.pass_obj

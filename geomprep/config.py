@@ -54,7 +54,7 @@ class DecomposeParams:
     mcts_nodes: int = 10
     sample_resolution: int = 1000
     convex_ratio: float = 0.97
-    """A mesh whose volume is at least this fraction of its hull's is used as one hull (no CoACD)."""
+    """A mesh with at least this fraction of its hull's volume becomes one hull (no CoACD)."""
     seed: int = 0
 
 
@@ -146,7 +146,8 @@ def _section(cls: type, values: dict[str, Any], where: str) -> Any:
     unknown = sorted(set(values) - set(known))
     if unknown:
         raise GeomprepError(
-            f"{where}: unknown key(s) {', '.join(unknown)}: valid keys are {', '.join(known) or 'none'}"
+            f"{where}: unknown key(s) {', '.join(unknown)}: "
+            f"valid keys are {', '.join(known) or 'none'}"
         )
     converted = {}
     for key, value in values.items():
@@ -185,4 +186,6 @@ def load_config(path: Path | None = None, data_dir: Path | None = None) -> Confi
 
 def params_dict(params: Any) -> dict[str, Any]:
     """A stage's parameters as a JSON-able dict (tuples become lists)."""
-    return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(params).items()}
+    return {
+        k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(params).items()
+    }

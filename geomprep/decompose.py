@@ -52,7 +52,9 @@ def decompose(vertices: np.ndarray, faces: np.ndarray, params: DecomposeParams) 
     if hull_mesh.volume <= 0:
         raise GeomprepError("mesh is flat (zero hull volume): it cannot be simulated as a solid")
     if mesh.is_watertight and mesh.volume >= params.convex_ratio * hull_mesh.volume:
-        return [convex_hull(limit_vertices(np.asarray(hull_mesh.vertices), params.max_hull_vertices))]
+        return [
+            convex_hull(limit_vertices(np.asarray(hull_mesh.vertices), params.max_hull_vertices))
+        ]
 
     import coacd  # imported here: it prints a banner and is the slowest import of the package
 
@@ -73,7 +75,9 @@ def decompose(vertices: np.ndarray, faces: np.ndarray, params: DecomposeParams) 
     hulls = []
     for part_vertices, _ in parts:
         # Re-hull: CoACD's decimated parts are convex but may carry interior vertices.
-        points = limit_vertices(np.asarray(part_vertices, dtype=np.float64), params.max_hull_vertices)
+        points = limit_vertices(
+            np.asarray(part_vertices, dtype=np.float64), params.max_hull_vertices
+        )
         if len(points) >= 4 and np.linalg.matrix_rank(points - points.mean(axis=0), tol=1e-9) == 3:
             hulls.append(convex_hull(points))
     if not hulls:

@@ -71,7 +71,9 @@ def load_source(path: Path) -> trimesh.Trimesh:
     """
     path = Path(path)
     if not path.is_file():
-        raise GeomprepError(f"mesh file not found: {path}: re-import the object with 'geomprep fetch'")
+        raise GeomprepError(
+            f"mesh file not found: {path}: re-import the object with 'geomprep fetch'"
+        )
     if path.suffix.lower() not in SUPPORTED_SUFFIXES:
         raise GeomprepError(
             f"unsupported mesh format '{path.suffix}' ({path}): convert it to one of "
@@ -110,7 +112,9 @@ def check_finite_and_units(vertices: np.ndarray, params: MeshParams, label: str)
     """Reject NaN/inf vertices and meshes whose size says they are not in metres."""
     if not np.isfinite(vertices).all():
         bad = int((~np.isfinite(vertices)).any(axis=1).sum())
-        raise GeomprepError(f"{label}: {bad} vertices are NaN or infinite: repair or re-export the mesh")
+        raise GeomprepError(
+            f"{label}: {bad} vertices are NaN or infinite: repair or re-export the mesh"
+        )
     extent = float(np.linalg.norm(np.ptp(vertices, axis=0)))
     if extent > params.max_extent_m:
         hint = " (it looks like millimetres: scale it by 0.001)" if extent > 20 else ""
@@ -134,7 +138,12 @@ def mass_properties(mesh: trimesh.Trimesh) -> tuple[float, np.ndarray, np.ndarra
     sensible: the hull is the shape a grasp meets anyway.
     """
     if mesh.is_watertight and mesh.volume > 0:
-        return float(mesh.volume), mesh.center_mass.copy(), mesh.moment_inertia / mesh.volume, "volume"
+        return (
+            float(mesh.volume),
+            mesh.center_mass.copy(),
+            mesh.moment_inertia / mesh.volume,
+            "volume",
+        )
     hull = mesh.convex_hull
     volume = abs(float(mesh.volume))
     if not 0.2 * hull.volume <= volume <= hull.volume:
@@ -164,7 +173,9 @@ def normalize_mesh(
     if mass_kg is None:
         mass_kg = (density_kg_m3 or params.density_kg_m3) * volume
     if not mass_kg > 0:
-        raise GeomprepError(f"{label}: mass {mass_kg} kg is not positive: fix masses.csv or the density")
+        raise GeomprepError(
+            f"{label}: mass {mass_kg} kg is not positive: fix masses.csv or the density"
+        )
 
     uv = None
     texture = None

@@ -61,7 +61,9 @@ def model_xml(
             f'    <texture name="{name}_texture" type="2d" file="texture.png"/>',
             f'    <material name="{name}_material" texture="{name}_texture"/>',
         ]
-    assets += [f'    <mesh name="{name}_hull_{k:03d}" file="hull_{k:03d}.stl"/>' for k in range(n_hulls)]
+    assets += [
+        f'    <mesh name="{name}_hull_{k:03d}" file="hull_{k:03d}.stl"/>' for k in range(n_hulls)
+    ]
     material = f' material="{name}_material"' if textured else ' rgba="0.7 0.7 0.7 1"'
     geoms = [
         f'      <geom name="{name}_visual" type="mesh" mesh="{name}_visual"{material} '
@@ -137,7 +139,9 @@ class SettleResult:
     seconds: float
 
 
-def settle_on_plane(xml_path: Path, drop_height_m: float = 0.01, seconds: float = 1.0) -> SettleResult:
+def settle_on_plane(
+    xml_path: Path, drop_height_m: float = 0.01, seconds: float = 1.0
+) -> SettleResult:
     """Drop the model from ``drop_height_m`` above a plane and simulate for ``seconds``.
 
     Raises GeomprepError if the model does not compile or the state becomes NaN.

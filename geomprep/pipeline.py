@@ -34,7 +34,18 @@ from typing import Any
 import numpy as np
 
 import geomprep
-from geomprep import bbox, builtin, decompose, fetch, mesh, mjcf, pointcloud, sdf, store, superquadric
+from geomprep import (
+    bbox,
+    builtin,
+    decompose,
+    fetch,
+    mesh,
+    mjcf,
+    pointcloud,
+    sdf,
+    store,
+    superquadric,
+)
 from geomprep.config import Config, params_dict
 from geomprep.errors import GeomprepError
 
@@ -101,7 +112,12 @@ def expected_keys(cfg: Config, name: str) -> dict[str, str]:
         if stage == "mesh":
             inputs["source"] = source_identity(cfg, name)
         keys[stage] = _hash(
-            {"stage": stage, "version": VERSIONS[stage], "params": stage_params(cfg, stage), "inputs": inputs}
+            {
+                "stage": stage,
+                "version": VERSIONS[stage],
+                "params": stage_params(cfg, stage),
+                "inputs": inputs,
+            }
         )
     return keys
 
@@ -112,7 +128,9 @@ def stage_status(cfg: Config, name: str) -> dict[str, str]:
     status = {}
     for stage, key in keys.items():
         attrs = store.read_root_attrs(stage_path(cfg, name, stage))
-        status[stage] = "missing" if attrs is None else "done" if attrs.get("cache_key") == key else "stale"
+        status[stage] = (
+            "missing" if attrs is None else "done" if attrs.get("cache_key") == key else "stale"
+        )
     return status
 
 
@@ -132,7 +150,11 @@ def run_mesh(cfg: Config, name: str) -> Groups:
     path = cfg.raw_dir / name / source["mesh"]
     loaded = mesh.load_source(path)
     norm = mesh.normalize_mesh(
-        loaded, cfg.mesh, source.get("mass_kg"), source.get("density_kg_m3"), label=f"object '{name}'"
+        loaded,
+        cfg.mesh,
+        source.get("mass_kg"),
+        source.get("density_kg_m3"),
+        label=f"object '{name}'",
     )
     visual: dict[str, np.ndarray] = {"vertices": norm.visual_vertices, "faces": norm.visual_faces}
     if norm.visual_uv is not None and norm.texture is not None:
@@ -240,7 +262,9 @@ def run_sq(cfg: Config, name: str) -> Groups:
 
 def run_pc(cfg: Config, name: str) -> Groups:
     vertices, faces = _load_mesh(cfg, name)
-    clouds = pointcloud.sample_pointclouds(vertices, faces, cfg.pc.sizes, cfg.pc.candidates, cfg.pc.seed)
+    clouds = pointcloud.sample_pointclouds(
+        vertices, faces, cfg.pc.sizes, cfg.pc.candidates, cfg.pc.seed
+    )
     datasets: dict[str, np.ndarray] = {}
     for n, (points, normals) in clouds.items():
         datasets[f"pc{n}"] = points
@@ -304,7 +328,11 @@ def resolve_objects(cfg: Config, spec: str | Sequence[str] | None) -> list[str]:
         elif item in builtin.NAMES or item in imported:
             names.append(item)
         else:
-            hint = " (a YCB object: import it first with 'geomprep fetch')" if item in fetch.YCB_OBJECTS else ""
+            hint = (
+                " (a YCB object: import it first with 'geomprep fetch')"
+                if item in fetch.YCB_OBJECTS
+                else ""
+            )
             raise GeomprepError(
                 f"unknown object '{item}'{hint}: run 'geomprep list' to see the available names"
             )
@@ -402,7 +430,9 @@ def build(
                 report.skipped.remove((name, later))
                 todo[(name, later)] = expected_keys(cfg, name)[later]
     if todo:
-        _execute(cfg, todo, report, jobs if jobs else (cfg.build.jobs or os.cpu_count() or 1), progress)
+        _execute(
+            cfg, todo, report, jobs if jobs else (cfg.build.jobs or os.cpu_count() or 1), progress
+        )
     return report
 
 
@@ -420,18 +450,28 @@ def _with_dependencies(stages: Sequence[str]) -> list[str]:
     return needed
 
 
-def _execute(cfg: Config, todo: dict[tuple[str, str], str], report: BuildReport, jobs: int, progress: bool) -> None:
+def _execute(
+    cfg: Config, todo: dict[tuple[str, str], str], report: BuildReport, jobs: int, progress: bool
+) -> None:
     """Run ``todo`` respecting dependencies, ``jobs`` at a time, with a progress bar."""
     from tqdm import tqdm
 
     pending = dict(todo)
     running: dict[Future, tuple[str, str]] = {}
-    bar = tqdm(total=len(todo), desc="geomprep", unit="stage", disable=not progress, dynamic_ncols=True)
+    bar = tqdm(
+        total=len(todo), desc="geomprep", unit="stage", disable=not progress, dynamic_ncols=True
+    )
 
     def ready(item: tuple[str, str]) -> bool:
         name, stage = item
-        return name not in report.failed and all((name, dep) not in pending for dep in DEPS[stage]) and all(
-            running_item != (name, dep) for running_item in running.values() for dep in DEPS[stage]
+        return (
+            name not in report.failed
+            and all((name, dep) not in pending for dep in DEPS[stage])
+            and all(
+                running_item != (name, dep)
+                for running_item in running.values()
+                for dep in DEPS[stage]
+            )
         )
 
     def finish(item: tuple[str, str], seconds: float, error: str | None) -> None:

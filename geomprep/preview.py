@@ -36,13 +36,15 @@ def summary(path: Path) -> str:
             f"volume {float(m['volume_m3']) * 1e6:.1f} cm^3, COM by {m['com_method']}",
             f"hulls       {int(d['n_hulls'])} (max {int(d['max_hull_vertices'])} vertices), "
             f"{float(d['covered_fraction_1mm']) * 100:.1f}% of vertices within 1 mm",
-            f"mjcf        {j['xml']}: settled at {float(j['settle_final_height_m']) * 1000:.1f} mm, "
+            f"mjcf        {j['xml']}: settled at "
+            f"{float(j['settle_final_height_m']) * 1000:.1f} mm, "
             f"speed {float(j['settle_final_speed_m_s']) * 1000:.2f} mm/s",
             f"bbox        extents {np.round(b['extents'][()] * 1000, 1).tolist()} mm, "
             f"{float(b.attrs['contained_fraction']) * 100:.1f}% of vertices inside",
             f"superquad.  eps {params[0]:.2f}, {params[1]:.2f}; "
             f"semi-axes {np.round(params[2:5] * 1000, 1).tolist()} mm",
-            f"sdf         {g['grid'].shape}, voxel {float(grid_attrs['voxel_size']) * 1000:.2f} mm, "
+            f"sdf         {g['grid'].shape}, "
+            f"voxel {float(grid_attrs['voxel_size']) * 1000:.2f} mm, "
             f"min {float(g['grid'][()].min()) * 1000:.1f} mm, "
             f"{path.stat().st_size / 1e6:.1f} MB file",
             f"pointcloud  {', '.join(k for k in f['pointcloud'] if k.startswith('pc'))}",
@@ -94,10 +96,14 @@ def render(path: Path, out: Path) -> None:
     colors = plt.get_cmap("tab20")
     for k, (hv, hf) in enumerate(decompose.unpack_hulls(hull_arrays)):
         axes[1].add_collection3d(
-            Poly3DCollection(hv[hf], facecolor=colors(k % 20), edgecolor="k", linewidth=0.1, alpha=0.8)
+            Poly3DCollection(
+                hv[hf], facecolor=colors(k % 20), edgecolor="k", linewidth=0.1, alpha=0.8
+            )
         )
     for ax in axes[2:4]:
-        ax.add_collection3d(Poly3DCollection(vertices[faces[:: step * 2]], facecolor="0.8", alpha=0.3))
+        ax.add_collection3d(
+            Poly3DCollection(vertices[faces[:: step * 2]], facecolor="0.8", alpha=0.3)
+        )
     for edge in _box_edges(box["center"], box["rotation"], box["extents"]):
         axes[2].plot(*edge.T, color="tab:red")
     params = sq["params"].astype(np.float64)
@@ -127,4 +133,3 @@ def render(path: Path, out: Path) -> None:
     with store.atomic_path(out) as tmp:
         fig.savefig(tmp, dpi=80, format="png")
     plt.close(fig)
-

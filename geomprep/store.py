@@ -37,7 +37,9 @@ def atomic_path(path: Path) -> Iterator[Path]:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     for stale in path.parent.glob(f".{path.name}.tmp-*"):  # left by a killed run
-        shutil.rmtree(stale, ignore_errors=True) if stale.is_dir() else stale.unlink(missing_ok=True)
+        shutil.rmtree(stale, ignore_errors=True) if stale.is_dir() else stale.unlink(
+            missing_ok=True
+        )
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
         yield tmp
@@ -59,7 +61,9 @@ def _write_attrs(obj: h5py.HLObject, attrs: Mapping[str, Any]) -> None:
 
 
 def _is_numeric_list(value: Any) -> bool:
-    return isinstance(value, list) and all(isinstance(v, int | float) for v in value) and value != []
+    return (
+        isinstance(value, list) and all(isinstance(v, int | float) for v in value) and value != []
+    )
 
 
 def write_stage(
@@ -129,9 +133,9 @@ def read_group(path: Path, group: str) -> tuple[dict[str, np.ndarray], dict[str,
         g = f[group]
         datasets: dict[str, np.ndarray] = {}
         g.visititems(
-            lambda name, obj: datasets.__setitem__(name, obj[()])
-            if isinstance(obj, h5py.Dataset)
-            else None
+            lambda name, obj: (
+                datasets.__setitem__(name, obj[()]) if isinstance(obj, h5py.Dataset) else None
+            )
         )
         return datasets, {k: _decode(v) for k, v in g.attrs.items()}
 

@@ -10,7 +10,9 @@ import pytest
 from geomprep import fetch, pipeline
 from geomprep.config import Config
 
-YCB_DIR = Path(os.environ.get("GEOMPREP_YCB_DIR", Path(__file__).resolve().parents[2] / "shared" / "ycb"))
+YCB_DIR = Path(
+    os.environ.get("GEOMPREP_YCB_DIR", Path(__file__).resolve().parents[2] / "shared" / "ycb")
+)
 YCB_TEST_OBJECTS = ("032_knife", "062_dice", "025_mug", "029_plate")
 
 

@@ -140,8 +140,15 @@ def test_bad_faces_raise() -> None:
 
 @pytest.mark.parametrize(
     "name",
-    ["003_cracker_box", "062_dice", "077_rubiks_cube", "032_knife", "025_mug", "029_plate",
-     "036_wood_block"],
+    [
+        "003_cracker_box",
+        "062_dice",
+        "077_rubiks_cube",
+        "032_knife",
+        "025_mug",
+        "029_plate",
+        "036_wood_block",
+    ],
 )
 def test_ycb_contains_vertices(name: str) -> None:
     mesh = _ycb_mesh(name)

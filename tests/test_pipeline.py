@@ -36,7 +36,9 @@ def box_data(tmp_path: Path, builtin_data: Config) -> Config:
 
 
 def _mtimes(cfg: Config, name: str) -> dict[str, float]:
-    return {s: pipeline.stage_path(cfg, name, s).stat().st_mtime_ns for s in (*pipeline.STAGES, "pack")}
+    return {
+        s: pipeline.stage_path(cfg, name, s).stat().st_mtime_ns for s in (*pipeline.STAGES, "pack")
+    }
 
 
 def test_rerun_with_nothing_changed_computes_nothing(box_data):
@@ -191,7 +193,9 @@ def test_config_file_overrides_and_rejects_unknown_keys(tmp_path):
     good = tmp_path / "good.toml"
     good.write_text('data_dir = "elsewhere"\n[sdf]\nresolution = 64\n[pc]\nsizes = [16, 64]\n')
     cfg = load_config(good)
-    assert cfg.sdf.resolution == 64 and cfg.pc.sizes == (16, 64) and cfg.data_dir == Path("elsewhere")
+    assert (
+        cfg.sdf.resolution == 64 and cfg.pc.sizes == (16, 64) and cfg.data_dir == Path("elsewhere")
+    )
     bad = tmp_path / "bad.toml"
     bad.write_text("[sdf]\nresolutoin = 64\n")
     with pytest.raises(GeomprepError) as exc:
@@ -214,7 +218,9 @@ def test_cli_list_show_and_errors(box_data, tmp_path):
     assert listed.returncode == 0, listed.stderr
     box_line = next(line for line in listed.stdout.splitlines() if line.startswith("builtin_box"))
     assert box_line.split()[1:] == ["done"] * 8
-    assert any(line.startswith("builtin_mug") and "-" in line for line in listed.stdout.splitlines())
+    assert any(
+        line.startswith("builtin_mug") and "-" in line for line in listed.stdout.splitlines()
+    )
 
     out = tmp_path / "box.png"
     shown = _invoke([*data, "show", "builtin_box", "--out", str(out)])
@@ -230,9 +236,11 @@ def test_cli_list_show_and_errors(box_data, tmp_path):
 def test_cli_single_stage_and_cached_rerun(box_data):
     data = ["--data-dir", str(box_data.data_dir)]
     pipeline.stage_path(box_data, "builtin_dice", "bbox").unlink()
+    pipeline.stage_path(box_data, "builtin_dice", "pack").unlink()
     first = _invoke([*data, "bbox", "builtin_dice"])
     assert first.returncode == 0, first.stderr
     assert "2 stages computed" in first.stdout  # bbox, then pack since all else was there
+    assert pipeline.stage_path(box_data, "builtin_dice", "pack").is_file()
     again = _invoke([*data, "build-all", "--objects", "builtin_dice", "--no-progress"])
     assert again.returncode == 0 and "0 stages computed, 8 cached" in again.stdout
 

@@ -42,7 +42,15 @@ def test_contract_layout(built):
             for n in (32, 128, 512):
                 assert f[f"pointcloud/pc{n}"].shape == (n, 3)
                 assert f[f"pointcloud/normals_{n}"].shape == (n, 3)
-            for group in ("mesh", "decomposition", "mjcf", "sdf", "bbox", "superquadric", "pointcloud"):
+            for group in (
+                "mesh",
+                "decomposition",
+                "mjcf",
+                "sdf",
+                "bbox",
+                "superquadric",
+                "pointcloud",
+            ):
                 assert "stage_params" in f[group].attrs and "stage_code_version" in f[group].attrs
 
 

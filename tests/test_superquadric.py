@@ -211,6 +211,17 @@ def test_fit_recovers_known_superquadric(shape: str, outliers: bool) -> None:
         assert diag["inlier_fraction"] == pytest.approx(0.8, abs=0.05)
 
 
+def test_fit_cube_reported_with_small_exponents() -> None:
+    # A sharp cube fits exactly as a 45-degree diamond (eps2 = 2) too; the fit must report
+    # the conventional square section so all boxes look alike to a policy.
+    mesh = trimesh.creation.box(extents=(0.016, 0.016, 0.016))
+    mesh.apply_transform(trimesh.transformations.euler_matrix(0.2, -0.4, 0.7))
+    pts, _ = trimesh.sample.sample_surface(mesh, 2000, seed=0)
+    params, _ = fit_superquadric(pts)
+    assert params[0] < 0.3 and params[1] < 0.3
+    np.testing.assert_allclose(params[2:5], 0.008, atol=0.0005)
+
+
 def test_fit_is_deterministic() -> None:
     true = make_params((0.5, 0.8), [0.05, 0.04, 0.03])
     pts = sample_surface(true, 3000, seed=0)
@@ -221,8 +232,13 @@ def test_fit_is_deterministic() -> None:
 
 @pytest.mark.parametrize(
     "points",
-    [np.zeros((0, 3)), np.zeros((9, 3)), np.full((50, 3), np.nan), np.zeros((50, 2)),
-     np.zeros((50, 3))],
+    [
+        np.zeros((0, 3)),
+        np.zeros((9, 3)),
+        np.full((50, 3), np.nan),
+        np.zeros((50, 2)),
+        np.zeros((50, 3)),
+    ],
     ids=["empty", "too-few", "nan", "2d", "all-identical"],
 )
 def test_fit_bad_input_raises(points: np.ndarray) -> None:
