@@ -66,7 +66,7 @@ class MJCFParams:
     """Sliding, torsional, rolling friction of the collision hulls."""
     condim: int = 4
     solref: tuple[float, float] = (0.01, 1.0)
-    settle_seconds: float = 1.0
+    settle_seconds: float = 2.0
     """Simulated time for the settle check that validates the model."""
 
 
@@ -92,7 +92,12 @@ class SQParams:
     num_points: int = 2000
     """Surface samples the fit sees."""
     outlier_ratio: float = 0.1
+    """EMS's prior fraction of outlier points (uniform density)."""
     max_iters: int = 30
+    surface_weight: float = 1.0
+    """The paper's second loss term: weight of the distance of points sampled on the
+    superquadric to the mesh surface (0 = EMS alone; keeps fits of bowls/mugs from bulging)."""
+    surface_samples: int = 200
     seed: int = 0
 
 

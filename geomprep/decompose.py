@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 import trimesh
+from scipy.spatial import ConvexHull, QhullError
 
 from geomprep.config import DecomposeParams
 from geomprep.errors import GeomprepError
 
-VERSION = 1
+VERSION = 2
 
 Hull = tuple[np.ndarray, np.ndarray]
 """One convex hull: vertices (V, 3) float64 metres, faces (F, 3) int32, outward winding."""
@@ -26,17 +27,41 @@ def convex_hull(points: np.ndarray) -> Hull:
 
 
 def limit_vertices(vertices: np.ndarray, max_vertices: int) -> np.ndarray:
-    """At most ``max_vertices`` hull vertices, chosen by farthest-point sampling.
+    """At most ``max_vertices`` of a convex point set, chosen so their hull stays close to it.
 
-    Farthest points keep the hull's extremes (corners, rims), which is what collisions feel.
+    Greedy outer refinement (as Quickhull, stopped early): start from extreme points and keep
+    adding the point farthest outside the current hull. This bounds how much of the object
+    the reduced hull misses far better than spreading points evenly.
+
+    Args:
+        vertices: (N, 3) metres, typically the vertices of a convex hull.
+    Returns:
+        (min(N, max_vertices), 3) subset of ``vertices``.
     """
+    vertices = np.asarray(vertices, dtype=np.float64)
     if len(vertices) <= max_vertices:
         return vertices
-    chosen = [int(np.argmax(np.linalg.norm(vertices - vertices.mean(axis=0), axis=1)))]
-    dist = np.linalg.norm(vertices - vertices[chosen[0]], axis=1)
-    for _ in range(max_vertices - 1):
-        chosen.append(int(np.argmax(dist)))
-        dist = np.minimum(dist, np.linalg.norm(vertices - vertices[chosen[-1]], axis=1))
+    centred = vertices - vertices.mean(axis=0)
+    # Extremes along the principal axes seed a solid start (at least a tetrahedron).
+    _, _, axes = np.linalg.svd(centred, full_matrices=False)
+    chosen = list(
+        dict.fromkeys(
+            int(i) for a in axes for i in (np.argmax(centred @ a), np.argmin(centred @ a))
+        )
+    )
+    while len(chosen) < max_vertices:
+        try:
+            hull = ConvexHull(vertices[chosen])
+        except QhullError:  # flat start: add the point farthest from the chosen ones
+            gap = np.min(np.linalg.norm(vertices[:, None] - vertices[chosen][None], axis=2), axis=1)
+            chosen.append(int(np.argmax(gap)))
+            continue
+        outside = (vertices @ hull.equations[:, :3].T + hull.equations[:, 3]).max(axis=1)
+        outside[chosen] = -np.inf
+        best = int(np.argmax(outside))
+        if outside[best] <= 1e-9:
+            break
+        chosen.append(best)
     return vertices[chosen]
 
 
@@ -68,13 +93,11 @@ def decompose(vertices: np.ndarray, faces: np.ndarray, params: DecomposeParams) 
         mcts_iterations=params.mcts_iterations,
         mcts_max_depth=params.mcts_depth,
         mcts_nodes=params.mcts_nodes,
-        decimate=True,
-        max_ch_vertex=params.max_hull_vertices,
+        decimate=False,  # limit_vertices below keeps the parts' coverage better
         seed=params.seed,
     )
     hulls = []
     for part_vertices, _ in parts:
-        # Re-hull: CoACD's decimated parts are convex but may carry interior vertices.
         points = limit_vertices(
             np.asarray(part_vertices, dtype=np.float64), params.max_hull_vertices
         )

@@ -250,13 +250,27 @@ def run_sq(cfg: Config, name: str) -> Groups:
     vertices, faces = _load_mesh(cfg, name)
     rng = np.random.default_rng(cfg.sq.seed)
     points, normals = pointcloud.sample_uniform(vertices, faces, cfg.sq.num_points, rng)
+    distance_to_mesh = sdf.mesh_distance_function(vertices, faces)
     params, info = superquadric.fit_superquadric(
         points,
         normals,
         outlier_ratio=cfg.sq.outlier_ratio,
         max_iters=cfg.sq.max_iters,
         seed=cfg.sq.seed,
+        surface_distance_fn=distance_to_mesh,
+        surface_weight=cfg.sq.surface_weight,
+        surface_samples=cfg.sq.surface_samples,
     )
+    # Two-sided quality of the fit, in metres: mesh -> superquadric and superquadric -> mesh.
+    mesh_to_sq = superquadric.radial_distance(params, points)
+    sq_to_mesh = distance_to_mesh(superquadric.sample_surface(params, 2000, seed=cfg.sq.seed))
+    info = {
+        **info,
+        "mesh_to_sq_mean_m": float(mesh_to_sq.mean()),
+        "mesh_to_sq_p95_m": float(np.percentile(mesh_to_sq, 95)),
+        "sq_to_mesh_mean_m": float(sq_to_mesh.mean()),
+        "sq_to_mesh_p95_m": float(np.percentile(sq_to_mesh, 95)),
+    }
     return {"superquadric": ({"params": np.asarray(params, dtype=np.float64)}, dict(info))}
 
 
@@ -403,7 +417,8 @@ def build(
 
     ``stages`` defaults to every stage and ``pack``. Independent stages of one object and all
     objects run in parallel on ``jobs`` processes (0 or None: the config's value, 0 = all cores).
-    ``force`` recomputes the requested stages even when their cache key matches.
+    ``force`` recomputes the requested stages even when their cache key matches. Stages are
+    deterministic, so a recomputed stage with an unchanged key leaves its dependents valid.
     """
     wanted = list(stages) if stages else [*STAGES, "pack"]
     report = BuildReport()
@@ -422,13 +437,6 @@ def build(
                 report.skipped.append((name, stage))
             else:
                 todo[(name, stage)] = keys[stage]
-    # A stage whose input reruns must rerun too, even if its own file looked current:
-    # its key already changed unless the input was forced, so propagate forced reruns.
-    for name, stage in list(todo):
-        for later in [s for s, deps in DEPS.items() if stage in deps]:
-            if (name, later) in report.skipped and later in _with_dependencies(wanted):
-                report.skipped.remove((name, later))
-                todo[(name, later)] = expected_keys(cfg, name)[later]
     if todo:
         _execute(
             cfg, todo, report, jobs if jobs else (cfg.build.jobs or os.cpu_count() or 1), progress

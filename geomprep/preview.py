@@ -114,8 +114,14 @@ def render(path: Path, out: Path) -> None:
 
     ax = fig.add_subplot(1, 6, 6)
     ax.set_title("SDF, y = 0 slice (mm)")
+    limit = radius * 1000  # colour only the neighbourhood; far values would wash it out
     image = ax.imshow(
-        sdf_slice.T * 1000, origin="lower", extent=(lo[0], hi[0], lo[2], hi[2]), cmap="RdBu"
+        sdf_slice.T * 1000,
+        origin="lower",
+        extent=(lo[0], hi[0], lo[2], hi[2]),
+        cmap="RdBu",
+        vmin=-limit,
+        vmax=limit,
     )
     ax.contour(
         np.linspace(lo[0], hi[0], sdf_slice.shape[0]),

@@ -90,7 +90,6 @@ def test_killed_build_resumes(box_data):
     """SIGKILL in the middle of the SDF stage: no valid-looking output; a rerun completes it."""
     for name in ("builtin_box", "builtin_dice"):
         pipeline.stage_path(box_data, name, "sdf").unlink()
-    pack_before = pipeline.stage_path(box_data, "builtin_box", "pack").stat().st_mtime_ns
     cmd = [sys.executable, "-m", "geomprep.cli", "--data-dir", str(box_data.data_dir)]
     proc = subprocess.Popen([*cmd, "build-all", "--objects", "builtin_box,builtin_dice", "-j", "1"])
     deadline = time.time() + 60
@@ -117,7 +116,6 @@ def test_killed_build_resumes(box_data):
     assert ("builtin_box", "mesh") in report.skipped  # resumed, not restarted
     assert {s for _, s in report.seconds} <= {"sdf", "pack"}
     assert all(v == "done" for v in pipeline.stage_status(box_data, "builtin_box").values())
-    assert pipeline.stage_path(box_data, "builtin_box", "pack").stat().st_mtime_ns != pack_before
     assert tmp_seen, "the build finished before it could be killed mid-write"
     assert not list(box_data.interim_dir.glob("*/.sdf.h5.tmp-*"))  # leftovers cleaned on rerun
 
