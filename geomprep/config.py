@@ -87,17 +87,30 @@ class BBoxParams:
 
 @dataclass(frozen=True)
 class SQParams:
-    """Stage ``sq``: superquadric fit."""
+    """Stage ``sq``: superquadric fit by EMS plus the paper's surface term.
 
-    num_points: int = 2000
-    """Surface samples the fit sees."""
+    The fields after ``n_points`` are ``superquadric.fit_superquadric``'s keyword arguments.
+    """
+
+    n_points: int = 1500
+    """Uniform surface samples the fit sees."""
     outlier_ratio: float = 0.1
     """EMS's prior fraction of outlier points (uniform density)."""
     max_iters: int = 30
+    tol: float = 1e-2
+    """Convergence: relative parameter change below this ends the EM iterations."""
+    max_switches: int = 4
+    switch_every: int = 8
+    m_step_nfev: int = 15
+    switch_nfev: int = 12
     surface_weight: float = 1.0
     """The paper's second loss term: weight of the distance of points sampled on the
     superquadric to the mesh surface (0 = EMS alone; keeps fits of bowls/mugs from bulging)."""
     surface_samples: int = 200
+    min_inlier_fraction: float = 0.5
+    """If the surface term leaves fewer inliers than this (the fit gave up on most of the
+    object, e.g. a skillet lid), refit with ``surface_weight * fallback_weight_factor``."""
+    fallback_weight_factor: float = 0.3
     seed: int = 0
 
 

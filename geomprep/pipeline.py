@@ -25,8 +25,9 @@ import os
 import shutil
 import time
 import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -50,6 +51,8 @@ from geomprep.config import Config, params_dict
 from geomprep.errors import GeomprepError
 
 log = logging.getLogger("geomprep")
+
+THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 STAGES: tuple[str, ...] = ("mesh", "decompose", "mjcf", "sdf", "bbox", "sq", "pc")
 DEPS: dict[str, tuple[str, ...]] = {
@@ -248,30 +251,37 @@ def run_bbox(cfg: Config, name: str) -> Groups:
 
 def run_sq(cfg: Config, name: str) -> Groups:
     vertices, faces = _load_mesh(cfg, name)
-    rng = np.random.default_rng(cfg.sq.seed)
-    points, normals = pointcloud.sample_uniform(vertices, faces, cfg.sq.num_points, rng)
-    distance_to_mesh = sdf.mesh_distance_function(vertices, faces)
-    params, info = superquadric.fit_superquadric(
-        points,
-        normals,
-        outlier_ratio=cfg.sq.outlier_ratio,
-        max_iters=cfg.sq.max_iters,
-        seed=cfg.sq.seed,
-        surface_distance_fn=distance_to_mesh,
-        surface_weight=cfg.sq.surface_weight,
-        surface_samples=cfg.sq.surface_samples,
-    )
-    # Two-sided quality of the fit, in metres: mesh -> superquadric and superquadric -> mesh.
-    mesh_to_sq = superquadric.radial_distance(params, points)
-    sq_to_mesh = distance_to_mesh(superquadric.sample_surface(params, 2000, seed=cfg.sq.seed))
+    params = cfg.sq
+    rng = np.random.default_rng(params.seed)
+    points, normals = pointcloud.sample_uniform(vertices, faces, params.n_points, rng)
+    oracle = superquadric.MeshOracle(vertices, faces)
+    fit_kwargs = {
+        k: v
+        for k, v in params_dict(params).items()
+        if k not in ("min_inlier_fraction", "fallback_weight_factor")
+    }
+
+    def fit(surface_weight: float) -> tuple[np.ndarray, dict[str, float]]:
+        return superquadric.fit_superquadric(
+            points,
+            normals,
+            surface_closest_fn=oracle.closest,
+            **{**fit_kwargs, "surface_weight": surface_weight},
+        )
+
+    sq_params, info = fit(params.surface_weight)
+    weight = params.surface_weight
+    if weight > 0 and info["inlier_fraction"] < params.min_inlier_fraction:
+        weight *= params.fallback_weight_factor
+        sq_params, info = fit(weight)
+    # Quality of the fit: two-sided distances (metres) mesh -> superquadric and superquadric ->
+    # mesh (mean, 95th percentile) and the volume IoU against the mesh's solid.
     info = {
         **info,
-        "mesh_to_sq_mean_m": float(mesh_to_sq.mean()),
-        "mesh_to_sq_p95_m": float(np.percentile(mesh_to_sq, 95)),
-        "sq_to_mesh_mean_m": float(sq_to_mesh.mean()),
-        "sq_to_mesh_p95_m": float(np.percentile(sq_to_mesh, 95)),
+        "surface_weight_used": weight,
+        **superquadric.fit_quality(sq_params, points, oracle, seed=params.seed),
     }
-    return {"superquadric": ({"params": np.asarray(params, dtype=np.float64)}, dict(info))}
+    return {"superquadric": ({"params": np.asarray(sq_params, dtype=np.float64)}, dict(info))}
 
 
 def run_pc(cfg: Config, name: str) -> Groups:
@@ -387,22 +397,35 @@ class BuildReport:
     """object -> one-line error."""
 
 
-def _worker_init() -> None:
-    # Each worker is one of --jobs parallel processes; inner thread pools would oversubscribe.
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
-    logging.getLogger("trimesh").setLevel(logging.ERROR)
-
-
-def _guarded_run(cfg: Config, name: str, stage: str, key: str) -> tuple[float, str | None]:
-    """run_stage, with any failure turned into a one-line message (a worker must not die)."""
+@contextmanager
+def _single_threaded_children() -> Iterator[None]:
+    """Environment for worker processes: each is one of --jobs parallel processes, so inner
+    thread pools (OpenMP, BLAS) would oversubscribe the cores. Set before the workers start,
+    because the libraries read it when they are imported."""
+    saved = {var: os.environ.get(var) for var in THREAD_VARS}
+    os.environ.update({var: "1" for var in THREAD_VARS})
     try:
-        return run_stage(cfg, name, stage, key), None
+        yield
+    finally:
+        for var, value in saved.items():
+            if value is None:
+                os.environ.pop(var, None)
+            else:
+                os.environ[var] = value
+
+
+def _guarded_run(
+    cfg: Config, name: str, stage: str, key: str
+) -> tuple[float, str | None, str | None]:
+    """run_stage, with any failure turned into (0, one-line message, traceback or None):
+    a worker must not die, and the user sees one line per failed object."""
+    logging.getLogger("trimesh").setLevel(logging.ERROR)
+    try:
+        return run_stage(cfg, name, stage, key), None, None
     except GeomprepError as exc:
-        return 0.0, str(exc)
-    except Exception as exc:  # an unexpected failure: keep the traceback for the log
-        log.debug(traceback.format_exc())
-        return 0.0, f"{stage} failed unexpectedly: {type(exc).__name__}: {exc}"
+        return 0.0, str(exc), None
+    except Exception as exc:  # a bug or an unforeseen input: keep the traceback for -v
+        return 0.0, f"{stage} failed: {type(exc).__name__}: {exc}", traceback.format_exc()
 
 
 def build(
@@ -422,6 +445,7 @@ def build(
     """
     wanted = list(stages) if stages else [*STAGES, "pack"]
     report = BuildReport()
+    needed = _with_dependencies(wanted)
     todo: dict[tuple[str, str], str] = {}  # (object, stage) -> key, for stages that must run
     for name in names:
         try:
@@ -429,7 +453,6 @@ def build(
         except GeomprepError as exc:
             report.failed[name] = str(exc)
             continue
-        needed = _with_dependencies(wanted)
         for stage in needed:
             attrs = store.read_root_attrs(stage_path(cfg, name, stage))
             up_to_date = attrs is not None and attrs.get("cache_key") == keys[stage]
@@ -482,7 +505,9 @@ def _execute(
             )
         )
 
-    def finish(item: tuple[str, str], seconds: float, error: str | None) -> None:
+    def finish(
+        item: tuple[str, str], seconds: float, error: str | None, detail: str | None
+    ) -> None:
         name, stage = item
         bar.update(1)
         if error is None:
@@ -492,6 +517,8 @@ def _execute(
         else:
             report.failed[name] = error
             log.error("%s: %s", name, error)
+            if detail:
+                log.info("%s", detail)
             for other in [i for i in pending if i[0] == name]:  # its later stages cannot run
                 del pending[other]
                 bar.update(1)
@@ -505,7 +532,10 @@ def _execute(
         return
 
     ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_worker_init) as pool:
+    with (
+        _single_threaded_children(),
+        ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool,
+    ):
         while pending or running:
             for item in [i for i in pending if ready(i)]:
                 del pending[item]

@@ -43,6 +43,7 @@ def summary(path: Path) -> str:
             f"{float(b.attrs['contained_fraction']) * 100:.1f}% of vertices inside",
             f"superquad.  eps {params[0]:.2f}, {params[1]:.2f}; "
             f"semi-axes {np.round(params[2:5] * 1000, 1).tolist()} mm",
+            _sq_quality_line(dict(s.attrs)),
             f"sdf         {g['grid'].shape}, "
             f"voxel {float(grid_attrs['voxel_size']) * 1000:.2f} mm, "
             f"min {float(g['grid'][()].min()) * 1000:.1f} mm, "
@@ -50,6 +51,19 @@ def summary(path: Path) -> str:
             f"pointcloud  {', '.join(k for k in f['pointcloud'] if k.startswith('pc'))}",
         ]
     return "\n".join(lines)
+
+
+def _sq_quality_line(attrs: dict) -> str:
+    """Superquadric fit quality in mm (attrs in metres), or a note for files without it."""
+    keys = ("mesh_to_sq_mean_m", "mesh_to_sq_p95_m", "sq_to_mesh_mean_m", "sq_to_mesh_p95_m")
+    if not all(k in attrs for k in keys):
+        return "            (no quality figures: rebuild the sq stage)"
+    mm = [float(attrs[k]) * 1000 for k in keys]
+    iou = f", volume IoU {float(attrs['volume_iou']):.2f}" if "volume_iou" in attrs else ""
+    return (
+        f"            mesh->sq {mm[0]:.1f} mm mean / {mm[1]:.1f} p95, "
+        f"sq->mesh {mm[2]:.1f} / {mm[3]:.1f}{iou}"
+    )
 
 
 def _box_edges(center: np.ndarray, rotation: np.ndarray, extents: np.ndarray) -> list[np.ndarray]:

@@ -6,13 +6,23 @@ import os
 from pathlib import Path
 
 import pytest
+import trimesh
 
-from geomprep import fetch, pipeline
+from geomprep import fetch, mesh, pipeline
 from geomprep.config import Config
 
-YCB_DIR = Path(
-    os.environ.get("GEOMPREP_YCB_DIR", Path(__file__).resolve().parents[2] / "shared" / "ycb")
-)
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _find_ycb() -> Path:
+    """$GEOMPREP_YCB_DIR, else a ``shared/ycb`` beside the checkout or inside it."""
+    if "GEOMPREP_YCB_DIR" in os.environ:
+        return Path(os.environ["GEOMPREP_YCB_DIR"])
+    candidates = (ROOT.parent / "shared" / "ycb", ROOT / "shared" / "ycb")
+    return next((c for c in candidates if c.is_dir()), candidates[0])
+
+
+YCB_DIR = _find_ycb()
 YCB_TEST_OBJECTS = ("032_knife", "062_dice", "025_mug", "029_plate")
 
 
@@ -20,6 +30,14 @@ def require_ycb() -> Path:
     if not (YCB_DIR / "032_knife" / "google_16k" / "textured.obj").is_file():
         pytest.skip(f"YCB models not found at {YCB_DIR} (set GEOMPREP_YCB_DIR)")
     return YCB_DIR
+
+
+def ycb_mesh(name: str) -> trimesh.Trimesh:
+    """A YCB object's cleaned geometry mesh in its object frame (origin at the COM), as the
+    mesh stage makes it; skips the test if the YCB models are absent."""
+    source = mesh.load_source(require_ycb() / name / "google_16k" / "textured.obj")
+    norm = mesh.normalize_mesh(source, Config().mesh, None, 500.0, label=name)
+    return trimesh.Trimesh(norm.vertices, norm.faces, process=False)
 
 
 @pytest.fixture(scope="session")

@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import numpy as np
 import pytest
 import trimesh
@@ -12,20 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from geomprep.bbox import oriented_bbox
 from geomprep.errors import GeomprepError
-
-YCB_DIR = Path(
-    os.environ.get("GEOMPREP_YCB_DIR", Path(__file__).resolve().parents[2] / "shared" / "ycb")
-)
-
-
-def _ycb_mesh(name: str) -> trimesh.Trimesh:
-    path = YCB_DIR / name / "google_16k" / "textured.obj"
-    if not path.exists():
-        pytest.skip(f"YCB mesh {path} not found (set GEOMPREP_YCB_DIR)")
-    mesh = trimesh.load(path, force="mesh")
-    centre = mesh.center_mass if mesh.is_watertight else mesh.vertices.mean(axis=0)
-    mesh.apply_translation(-centre)
-    return mesh
+from tests.conftest import ycb_mesh
 
 
 def _box(extents: np.ndarray, rot: np.ndarray, shift: np.ndarray) -> trimesh.Trimesh:
@@ -151,7 +135,7 @@ def test_bad_faces_raise() -> None:
     ],
 )
 def test_ycb_contains_vertices(name: str) -> None:
-    mesh = _ycb_mesh(name)
+    mesh = ycb_mesh(name)
     c, r, e = oriented_bbox(mesh.vertices, mesh.faces)
     local = (mesh.vertices - c) @ r
     inside = np.all(np.abs(local) <= e / 2 + 1e-6, axis=1)
@@ -163,7 +147,7 @@ def test_ycb_contains_vertices(name: str) -> None:
     "name", ["003_cracker_box", "062_dice", "077_rubiks_cube", "036_wood_block"]
 )
 def test_ycb_box_shaped_volume_near_optimal(name: str) -> None:
-    mesh = _ycb_mesh(name)
+    mesh = ycb_mesh(name)
     _, _, e = oriented_bbox(mesh.vertices, mesh.faces)
     _, best = trimesh.bounds.oriented_bounds(mesh)
     # A PCA box of a cuboid is close to the min-volume one; 2x is the acceptance bound, and

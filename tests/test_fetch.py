@@ -5,7 +5,6 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import os
 import tarfile
 import threading
 import time
@@ -26,10 +25,8 @@ from geomprep.fetch import (
     read_masses,
     read_source,
 )
+from tests.conftest import YCB_DIR
 
-YCB_DIR = Path(
-    os.environ.get("GEOMPREP_YCB_DIR", Path(__file__).resolve().parents[2] / "shared" / "ycb")
-)
 KNIFE = "032_knife"
 DICE = "062_dice"
 

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import os
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,30 +12,22 @@ from scipy.spatial.transform import Rotation
 
 from geomprep.errors import GeomprepError
 from geomprep.superquadric import (
+    MeshOracle,
     _radial_canonical,
     _radial_with_grad,
+    _SurfaceOracle,
+    fit_quality,
     fit_superquadric,
     implicit,
     make_params,
     radial_distance,
     rotation_matrix,
     sample_surface,
+    sample_surface_dense,
     to_canonical,
+    volume_iou,
 )
-
-YCB_DIR = Path(
-    os.environ.get("GEOMPREP_YCB_DIR", Path(__file__).resolve().parents[2] / "shared" / "ycb")
-)
-
-
-def _ycb_mesh(name: str) -> trimesh.Trimesh:
-    path = YCB_DIR / name / "google_16k" / "textured.obj"
-    if not path.exists():
-        pytest.skip(f"YCB mesh {path} not found (set GEOMPREP_YCB_DIR)")
-    mesh = trimesh.load(path, force="mesh")
-    centre = mesh.center_mass if mesh.is_watertight else mesh.vertices.mean(axis=0)
-    mesh.apply_translation(-centre)
-    return mesh
+from tests.conftest import ycb_mesh
 
 
 def _surface_error(true: np.ndarray, fitted: np.ndarray) -> float:
@@ -188,9 +178,18 @@ SHAPES = {
 }
 
 
+def _closest_on_samples(params: np.ndarray, n: int = 20000):  # type: ignore[no-untyped-def]
+    """Closest-point function (K, 3) -> (K, 3) onto n dense samples of a superquadric: the
+    'exact' surface for the regularised fits of known shapes (spacing ~1 mm at these sizes)."""
+    samples = sample_surface_dense(params, n, seed=99)
+    tree = cKDTree(samples)
+    return lambda q: samples[tree.query(q)[1]]
+
+
+@pytest.mark.parametrize("regularized", [False, True], ids=["ems", "ems+surface"])
 @pytest.mark.parametrize("outliers", [False, True], ids=["clean", "outliers20"])
 @pytest.mark.parametrize("shape", list(SHAPES))
-def test_fit_recovers_known_superquadric(shape: str, outliers: bool) -> None:
+def test_fit_recovers_known_superquadric(shape: str, outliers: bool, regularized: bool) -> None:
     eps, axes = SHAPES[shape]
     seed = sorted(SHAPES).index(shape)
     rng = np.random.default_rng(seed)
@@ -202,13 +201,18 @@ def test_fit_recovers_known_superquadric(shape: str, outliers: bool) -> None:
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         pts = np.vstack([pts, rng.uniform(lo, hi, size=(n_in // 4, 3))])  # 20 % of all points
         pts = pts[rng.permutation(len(pts))]
-    fitted, diag = fit_superquadric(pts, outlier_ratio=0.2 if outliers else 0.1)
+    surface = {}
+    if regularized:
+        surface = {"surface_closest_fn": _closest_on_samples(true), "surface_weight": 1.0}
+    fitted, diag = fit_superquadric(pts, outlier_ratio=0.2 if outliers else 0.1, **surface)
     assert fitted.shape == (11,) and fitted.dtype == np.float64
     assert 0.1 <= fitted[0] <= 2.0 and 0.1 <= fitted[1] <= 2.0
     assert _surface_error(true, fitted) < 0.02
     assert all(isinstance(v, float) for v in diag.values())
     if outliers:
         assert diag["inlier_fraction"] == pytest.approx(0.8, abs=0.05)
+    if regularized:
+        assert diag["surface_mean_m"] < 0.02 * max(axes)
 
 
 def test_fit_cube_reported_with_small_exponents() -> None:
@@ -254,6 +258,17 @@ def test_fit_bad_options_raise() -> None:
         fit_superquadric(pts, surface_weight=-1.0)
     with pytest.raises(GeomprepError):
         fit_superquadric(pts, normals=np.zeros((3, 3)))
+    for bad in ({"max_iters": 0}, {"tol": 0.0}, {"max_switches": -1}, {"surface_samples": 0}):
+        with pytest.raises(GeomprepError):
+            fit_superquadric(pts, **bad)  # type: ignore[arg-type]
+
+
+def test_fit_reports_convergence() -> None:
+    pts = sample_surface(make_params((0.6, 0.9), [0.05, 0.04, 0.03]), 1500)
+    _, diag = fit_superquadric(pts)
+    assert diag["converged"] == 1.0 and diag["iters"] < 30
+    _, diag = fit_superquadric(pts, max_iters=1, tol=1e-12)
+    assert diag["converged"] == 0.0 and diag["iters"] == 1.0
 
 
 def _hemisphere_shell(radius: float, n: int, seed: int) -> np.ndarray:
@@ -274,22 +289,120 @@ def _hemisphere_distance(radius: float):  # type: ignore[no-untyped-def]
     return dist
 
 
-def test_surface_term_shrinks_bowl_fit_toward_object() -> None:
+@pytest.mark.parametrize("oracle", ["distance", "closest"])
+def test_surface_term_shrinks_bowl_fit_toward_object(oracle: str) -> None:
     # Points on a hemisphere fit a full sphere perfectly, so plain EMS bulges a whole
     # hemisphere past the bowl's rim (z > 0); the surface term must pull it onto the bowl.
     radius = 0.06
     pts = _hemisphere_shell(radius, 2000, seed=0)
     dist = _hemisphere_distance(radius)
     plain, _ = fit_superquadric(pts)
-    reg, diag = fit_superquadric(pts, surface_distance_fn=dist, surface_weight=1.0)
+    if oracle == "distance":
+        surface = {"surface_distance_fn": dist}
+    else:
+        shell = _hemisphere_shell(radius, 40000, seed=1)
+        tree = cKDTree(shell)
+        surface = {"surface_closest_fn": lambda q: shell[tree.query(q)[1]]}
+    reg, diag = fit_superquadric(pts, surface_weight=1.0, **surface)
     plain_s, reg_s = sample_surface(plain, 1000), sample_surface(reg, 1000)
-    # Measured: top at 1.0 r -> 0.18 r, mean gap 0.28 r -> 0.16 r.
+    # Measured: top at 1.0 r -> 0.18 r, mean gap 0.28 r -> 0.16 r, p95 gap 1.06 r -> 0.62 r.
     assert plain_s[:, 2].max() > 0.9 * radius  # the unregularised fit really does bulge
     assert reg_s[:, 2].max() < 0.4 * radius
     assert dist(reg_s).mean() < 0.7 * dist(plain_s).mean()
+    assert np.percentile(dist(reg_s), 95) < 0.7 * np.percentile(dist(plain_s), 95)
     assert diag["surface_mean_m"] == pytest.approx(dist(reg_s).mean(), rel=0.3)
     # The data term still holds the superquadric near the points.
     assert radial_distance(reg, pts).mean() < 0.1 * radius
+
+
+def test_surface_term_leaves_box_fit_alone() -> None:
+    # A box is within the superquadrics' scope: the surface term must not move its fit.
+    mesh = trimesh.creation.box(extents=(0.12, 0.08, 0.05))
+    mesh.apply_transform(trimesh.transformations.euler_matrix(0.3, 0.2, -0.5))
+    pts, _ = trimesh.sample.sample_surface(mesh, 2000, seed=0)
+    oracle = MeshOracle(mesh.vertices, mesh.faces)
+    plain, _ = fit_superquadric(pts)
+    reg, _ = fit_superquadric(pts, surface_closest_fn=oracle.closest, surface_weight=1.0)
+    q_plain = fit_quality(plain, pts, oracle)
+    q_reg = fit_quality(reg, pts, oracle)
+    assert q_reg["mesh_to_sq_mean_m"] < 1.1 * q_plain["mesh_to_sq_mean_m"] + 1e-4
+    assert q_reg["volume_iou"] > 0.95 and q_plain["volume_iou"] > 0.95
+    np.testing.assert_allclose(np.sort(reg[2:5]), [0.025, 0.04, 0.06], atol=0.002)
+
+
+def test_surface_oracle_gradients_agree() -> None:
+    # Distance to a sphere of radius 0.05: the gradient is the radial unit vector, from the
+    # closest-point path exactly and from the distance-only path by forward differences.
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(50, 3)) * 0.05
+    radius = 0.05
+
+    def closest(q: np.ndarray) -> np.ndarray:
+        return radius * q / np.linalg.norm(q, axis=1, keepdims=True)
+
+    def distance(q: np.ndarray) -> np.ndarray:
+        return np.abs(np.linalg.norm(q, axis=1) - radius)
+
+    d1, g1 = _SurfaceOracle(None, closest, 0.05).distance_and_gradient(p)
+    d2, g2 = _SurfaceOracle(distance, None, 0.05).distance_and_gradient(p)
+    np.testing.assert_allclose(d1, distance(p), atol=1e-12)
+    np.testing.assert_allclose(d2, distance(p), atol=1e-12)
+    np.testing.assert_allclose(g1, g2, atol=1e-3)
+    outside = np.linalg.norm(p, axis=1) > radius
+    unit = p / np.linalg.norm(p, axis=1, keepdims=True)
+    np.testing.assert_allclose(g1[outside], unit[outside], atol=1e-9)
+
+
+# ------------------------------------------------------------------------------------------
+# Quality measures
+# ------------------------------------------------------------------------------------------
+
+
+def test_volume_iou_sphere_in_cube() -> None:
+    # A ball of radius r in the cube of side 2r: IoU = (4/3 pi r^3) / (2r)^3 = pi / 6.
+    r = 0.05
+    cube = trimesh.creation.box(extents=(2 * r, 2 * r, 2 * r))
+    oracle = MeshOracle(cube.vertices, cube.faces)
+    ball = make_params((1.0, 1.0), [r, r, r])
+    assert volume_iou(ball, oracle.inside, oracle.bounds, voxel=0.002) == pytest.approx(
+        np.pi / 6, abs=0.02
+    )
+    box = make_params((0.1, 0.1), [r, r, r])
+    assert volume_iou(box, oracle.inside, oracle.bounds, voxel=0.002) > 0.97
+    far = make_params((1.0, 1.0), [r, r, r], translation=[1.0, 0.0, 0.0])
+    assert volume_iou(far, oracle.inside, oracle.bounds) == 0.0
+
+
+def test_mesh_inside_robust_on_open_scan() -> None:
+    # A box with a hole in its top (a 2 x 2 cm patch missing), like a scan with a gap: a
+    # single ray through the hole would call the point outside; the majority vote does not.
+    cube = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
+    for _ in range(4):
+        cube = cube.subdivide()
+    c = cube.triangles_center
+    hole = (c[:, 2] > 0.049) & (np.abs(c[:, 0]) < 0.01) & (np.abs(c[:, 1]) < 0.01)
+    assert hole.any()
+    open_box = trimesh.Trimesh(cube.vertices, cube.faces[~hole], process=False)
+    oracle = MeshOracle(open_box.vertices, open_box.faces)
+    box = make_params((0.1, 0.1), [0.05, 0.05, 0.05])
+    assert volume_iou(box, oracle.inside, oracle.bounds, voxel=0.0025) > 0.97
+
+
+def test_fit_quality_of_exact_fit_is_small() -> None:
+    mesh = trimesh.creation.icosphere(subdivisions=5, radius=0.04)
+    oracle = MeshOracle(mesh.vertices, mesh.faces)
+    pts, _ = trimesh.sample.sample_surface(mesh, 3000, seed=0)
+    q = fit_quality(make_params((1.0, 1.0), [0.04, 0.04, 0.04]), pts, oracle)
+    assert set(q) == {
+        "mesh_to_sq_mean_m",
+        "mesh_to_sq_p95_m",
+        "sq_to_mesh_mean_m",
+        "sq_to_mesh_p95_m",
+        "volume_iou",
+    }
+    # The icosphere's flat facets sit up to ~0.1 mm inside the true sphere.
+    assert q["mesh_to_sq_p95_m"] < 2e-4 and q["sq_to_mesh_p95_m"] < 2e-4
+    assert q["volume_iou"] > 0.95
 
 
 # ------------------------------------------------------------------------------------------
@@ -298,7 +411,7 @@ def test_surface_term_shrinks_bowl_fit_toward_object() -> None:
 
 
 def test_fit_ycb_cracker_box() -> None:
-    mesh = _ycb_mesh("003_cracker_box")
+    mesh = ycb_mesh("003_cracker_box")
     pts, _ = trimesh.sample.sample_surface(mesh, 20000, seed=0)
     start = time.perf_counter()
     params, diag = fit_superquadric(pts)
@@ -312,3 +425,19 @@ def test_fit_ycb_cracker_box() -> None:
     assert np.sort(2.0 * params[2:5]) == pytest.approx([0.07, 0.164, 0.214], abs=0.01)
     assert diag["inlier_mean_radial_m"] < 0.002
     assert np.median(radial_distance(params, pts)) < 0.002
+
+
+def test_show_prints_quality_in_mm() -> None:
+    from geomprep.preview import _sq_quality_line
+
+    attrs = {
+        "mesh_to_sq_mean_m": 0.0012,
+        "mesh_to_sq_p95_m": 0.0031,
+        "sq_to_mesh_mean_m": 0.0045,
+        "sq_to_mesh_p95_m": 0.0102,
+        "volume_iou": 0.874,
+    }
+    line = _sq_quality_line(attrs)
+    assert "mesh->sq 1.2 mm mean / 3.1 p95" in line
+    assert "sq->mesh 4.5 / 10.2" in line and "volume IoU 0.87" in line
+    assert "rebuild" in _sq_quality_line({})

@@ -1,0 +1,208 @@
+"""Benchmark the batched SDF lookup (geomprep.sdf_lookup) at the trainer's batch size.
+
+Usage: python bench/sdf_lookup.py [--envs 16384] [--points 5] [--objects 78] [--resolution 200]
+                                  [--repeats 50] [--data-dir data/processed] [--threads N]
+
+Times ``SDFLookup.query`` for E envs x K fingertips (world points, random object poses and ids),
+on the CPU and, if available, CUDA, in float32 and float16 storage: milliseconds per query, the
+median of --repeats calls after warm-up.  Baselines in the same run, on the same points: a naive
+lookup that gathers the 8 corners with 8 separate 4-D fancy-index reads, and scipy's
+RegularGridInterpolator called once per object (its grids are numpy, so a loop over objects).
+Prints the paper's figure (0.31 ms, RTX A6000), the targets and the grid memory for the objects.
+
+Without --data-dir the grids are synthetic (distance to spheres of different radii): the timing
+depends on the shapes of the tensors and the spread of the points, not on the values.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+from scipy.interpolate import RegularGridInterpolator
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from geomprep.sdf import voxel_centers  # noqa: E402
+from geomprep.sdf_lookup import SDFLookup, quat_to_matrix  # noqa: E402
+
+PAPER_MS = 0.31
+TARGET_CPU_MS = 3.0
+TARGET_GPU_MS = 0.1
+
+
+def synthetic_grids(n_obj: int, resolution: int, extent: float = 0.5) -> np.ndarray:
+    """(N, R, R, R) float32 signed distance to spheres of radius 3-10 cm at the origin."""
+    c = voxel_centers(resolution, extent).astype(np.float32)
+    r = np.sqrt(c[:, None, None] ** 2 + c[None, :, None] ** 2 + c[None, None, :] ** 2)
+    grids = np.empty((n_obj, resolution, resolution, resolution), dtype=np.float32)
+    for n, radius in enumerate(np.linspace(0.03, 0.10, n_obj)):
+        np.subtract(r, radius, out=grids[n])
+    return grids
+
+
+def make_queries(
+    n_env: int, n_points: int, n_obj: int, seed: int = 0
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """World points (E, K, 3), poses (E, 3) and (E, 4) wxyz, ids (E,), object-frame points.
+
+    Fingertips lie within 15 cm of their object's origin, as during grasping, so the reads
+    spread over each object's neighbourhood rather than the whole grid.
+    """
+    gen = torch.Generator().manual_seed(seed)
+    local = (torch.rand(n_env, n_points, 3, generator=gen) - 0.5) * 0.3
+    pos = (torch.rand(n_env, 3, generator=gen) - 0.5) * 2.0
+    quat = torch.randn(n_env, 4, generator=gen)
+    quat = quat / quat.norm(dim=-1, keepdim=True)
+    ids = torch.randint(0, n_obj, (n_env,), generator=gen)
+    world = torch.einsum("eij,ekj->eki", quat_to_matrix(quat), local) + pos[:, None, :]
+    return world, pos, quat, ids, local
+
+
+def naive_gather(lookup: SDFLookup, local: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
+    """The straightforward version: 8 separate [id, i, j, k] reads, no clamping rule subtleties.
+
+    local: (E, K, 3) object-frame points, metres; returns (E, K) float32.
+    """
+    r = lookup.resolution
+    u = (local - lookup.bounds_min[ids][:, None]) * lookup.inv_voxel[ids][:, None, None] - 0.5
+    u = u.clamp(0.0, r - 1.0)
+    base = u.floor().clamp(max=r - 2.0)
+    t = u - base
+    i, j, k = base.long().unbind(-1)
+    n = ids[:, None].expand_as(i)
+    out = torch.zeros(local.shape[:2])
+    for di in (0, 1):
+        for dj in (0, 1):
+            for dk in (0, 1):
+                w = (
+                    (t[..., 0] if di else 1 - t[..., 0])
+                    * (t[..., 1] if dj else 1 - t[..., 1])
+                    * (t[..., 2] if dk else 1 - t[..., 2])
+                )
+                out += w * lookup.grids[n, i + di, j + dj, k + dk].float()
+    return out
+
+
+def scipy_lookup(
+    interpolators: list[RegularGridInterpolator], local: np.ndarray, ids: np.ndarray
+) -> np.ndarray:
+    """RegularGridInterpolator per object over its envs' points: (E, K) float64."""
+    out = np.empty(local.shape[:2])
+    for n in np.unique(ids):
+        rows = ids == n
+        out[rows] = interpolators[n](local[rows].reshape(-1, 3)).reshape(-1, local.shape[1])
+    return out
+
+
+def median_ms(fn: Callable[[], object], repeats: int, sync: Callable[[], None]) -> float:
+    """Median wall time of fn in milliseconds over repeats calls, after 3 warm-up calls."""
+    for _ in range(3):
+        fn()
+    sync()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        sync()
+        times.append((time.perf_counter() - start) * 1e3)
+    return statistics.median(times)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--envs", type=int, default=16384)
+    parser.add_argument("--points", type=int, default=5)
+    parser.add_argument("--objects", type=int, default=78)
+    parser.add_argument("--resolution", type=int, default=200)
+    parser.add_argument("--repeats", type=int, default=50)
+    parser.add_argument("--data-dir", type=Path, default=None, help="use data/processed/*.h5")
+    parser.add_argument(
+        "--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)"
+    )
+    args = parser.parse_args()
+    if args.threads:
+        # On a loaded 2-core machine 2 intra-op threads wait on each other at every op.
+        torch.set_num_threads(args.threads)
+
+    r, n_obj = args.resolution, args.objects
+    f32_gb, f16_gb = r**3 * 4 * n_obj / 1e9, r**3 * 2 * n_obj / 1e9
+    print(
+        f"grid memory, {n_obj} objects at {r}^3: float32 {f32_gb:.2f} GB, float16 {f16_gb:.2f} GB"
+    )
+    print(
+        f"paper: {PAPER_MS} ms per query (RTX A6000); targets: <= {TARGET_CPU_MS} ms on the 2-core "
+        f"CPU, <= {TARGET_GPU_MS} ms on a GPU; torch threads: {torch.get_num_threads()}"
+    )
+
+    if args.data_dir is not None:
+        paths = sorted(args.data_dir.glob("*.h5"))[:n_obj]
+        lookup32 = SDFLookup.from_hdf5(paths)
+        n_obj = len(paths)
+    else:
+        grids = synthetic_grids(n_obj, r)
+        lookup32 = SDFLookup(grids, np.full((n_obj, 3), -0.5), np.full(n_obj, 1.0 / r))
+        del grids
+    lookup16 = SDFLookup(
+        lookup32.grids, lookup32.bounds_min, 1.0 / lookup32.inv_voxel, dtype=torch.float16
+    )
+    world, pos, quat, ids, local = make_queries(args.envs, args.points, n_obj)
+    print(f"{args.envs} envs x {args.points} points, {n_obj} objects")
+
+    devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    with torch.no_grad():
+        for device in devices:
+            sync = torch.cuda.synchronize if device == "cuda" else (lambda: None)
+            q = [x.to(device) for x in (world, pos, quat, ids)]
+            times = {}
+            for label, lookup in (("float32", lookup32), ("float16", lookup16)):
+                lk = lookup.to(device)
+                times[label] = median_ms(lambda lk=lk, q=q: lk.query(*q), args.repeats, sync)
+                lookup.to("cpu")  # Module.to moves in place; the baselines below run on CPU
+            target = TARGET_CPU_MS if device == "cpu" else TARGET_GPU_MS
+            for label, ms in times.items():
+                print(
+                    f"{device:<5} SDFLookup.query {label}: {ms:8.3f} ms   (target <= {target} ms)"
+                )
+
+        local_cpu = torch.bmm(world - pos[:, None], quat_to_matrix(quat))
+        naive_ms = median_ms(
+            lambda: naive_gather(lookup32, local_cpu, ids), max(5, args.repeats // 5), lambda: None
+        )
+        fast_ms = median_ms(
+            lambda: lookup32.query_local(local_cpu, ids), args.repeats, lambda: None
+        )
+        err = float(
+            (naive_gather(lookup32, local_cpu, ids) - lookup32.query_local(local_cpu, ids))
+            .abs()
+            .max()
+        )
+        print(
+            f"cpu   baseline naive 8-gather (object frame): {naive_ms:8.3f} ms; ours (object "
+            f"frame) {fast_ms:.3f} ms; ratio {naive_ms / fast_ms:.1f}x; max diff {err:.1e} m"
+        )
+        grids_np = lookup32.grids.numpy()
+        c = voxel_centers(r)
+        interps = [
+            RegularGridInterpolator((c, c, c), grids_np[n], bounds_error=False, fill_value=None)
+            for n in range(n_obj)
+        ]
+        local_np, ids_np = local_cpu.numpy().astype(np.float64), ids.numpy()
+        scipy_ms = median_ms(lambda: scipy_lookup(interps, local_np, ids_np), 5, lambda: None)
+        diff = np.abs(
+            scipy_lookup(interps, local_np, ids_np) - lookup32.query_local(local_cpu, ids).numpy()
+        ).max()
+        print(
+            f"cpu   baseline scipy RegularGridInterpolator per object: {scipy_ms:8.3f} ms; "
+            f"ratio {scipy_ms / fast_ms:.1f}x; max diff {diff:.1e} m"
+        )
+
+
+if __name__ == "__main__":
+    main()
