@@ -19,7 +19,7 @@ STAGE_HELP = {
     "mjcf": "Write the MuJoCo model and check that it settles on a plane.",
     "sdf": "Signed-distance grid (200^3 over [-0.5, 0.5]^3 m by default).",
     "bbox": "Oriented bounding box along the principal axes.",
-    "sq": "Superquadric fit.",
+    "sq": "Superquadric fit (EMS + surface term) with two-sided errors and volume IoU.",
     "pc": "32/128/512 well-spread surface points with normals.",
 }
 
