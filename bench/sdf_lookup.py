@@ -2,6 +2,7 @@
 
 Usage: python bench/sdf_lookup.py [--envs 16384] [--points 5] [--objects 78] [--resolution 200]
                                   [--repeats 50] [--data-dir data/processed] [--threads N]
+                                  [--spread surface|near|cube]
 
 Times ``SDFLookup.query`` for E envs x K fingertips (world points, random object poses and ids),
 on the CPU and, if available, CUDA, in float32 and float16 storage: milliseconds per query, the
@@ -30,7 +31,7 @@ from scipy.interpolate import RegularGridInterpolator
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from geomprep.sdf import voxel_centers  # noqa: E402
-from geomprep.sdf_lookup import SDFLookup, quat_to_matrix  # noqa: E402
+from geomprep.sdf_lookup import SDFLookup, empty_grids, quat_to_matrix  # noqa: E402
 
 PAPER_MS = 0.31
 TARGET_CPU_MS = 3.0
@@ -38,29 +39,67 @@ TARGET_GPU_MS = 0.1
 
 
 def synthetic_grids(n_obj: int, resolution: int, extent: float = 0.5) -> np.ndarray:
-    """(N, R, R, R) float32 signed distance to spheres of radius 3-10 cm at the origin."""
+    """(N, R, R, R) float32 signed distance to spheres of radius 3-10 cm at the origin.
+
+    Written into ``empty_grids`` memory (huge pages on Linux), as ``SDFLookup.from_hdf5`` does,
+    so the lookup built on it uses it in place.
+    """
     c = voxel_centers(resolution, extent).astype(np.float32)
     r = np.sqrt(c[:, None, None] ** 2 + c[None, :, None] ** 2 + c[None, None, :] ** 2)
-    grids = np.empty((n_obj, resolution, resolution, resolution), dtype=np.float32)
+    grids = empty_grids((n_obj, resolution, resolution, resolution)).numpy()
     for n, radius in enumerate(np.linspace(0.03, 0.10, n_obj)):
         np.subtract(r, radius, out=grids[n])
     return grids
 
 
+SPREADS = ("surface", "near", "cube")
+
+
 def make_queries(
-    n_env: int, n_points: int, n_obj: int, seed: int = 0
+    n_env: int,
+    n_points: int,
+    n_obj: int,
+    seed: int = 0,
+    spread: str = "near",
+    lookup: SDFLookup | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """World points (E, K, 3), poses (E, 3) and (E, 4) wxyz, ids (E,), object-frame points.
 
-    Fingertips lie within 15 cm of their object's origin, as during grasping, so the reads
-    spread over each object's neighbourhood rather than the whole grid.
+    spread, where the fingertips are in the object frame (the reads' working set, and so the
+    cache and TLB misses, depends on it, not the values):
+    - ``surface``: within 2 cm of the object's surface (voxels with |d| < 2 cm of its grid,
+      jittered within the voxel; needs lookup), as while grasping: the realistic case.
+    - ``near``: uniform within 15 cm of the origin (a 30 cm cube), approaching the object.
+    - ``cube``: uniform over each object's whole grid cube: the worst case, every read a random
+      one into the whole stack.
     """
     gen = torch.Generator().manual_seed(seed)
-    local = (torch.rand(n_env, n_points, 3, generator=gen) - 0.5) * 0.3
+    ids = torch.randint(0, n_obj, (n_env,), generator=gen)
+    if spread == "surface":
+        assert lookup is not None, "spread='surface' needs the lookup's grids"
+        local = torch.empty(n_env, n_points, 3)
+        voxel = 1.0 / lookup.inv_voxel
+        for n in range(n_obj):
+            rows = (ids == n).nonzero().flatten()
+            if len(rows) == 0:
+                continue
+            shell = (lookup.grids[n].abs() < 0.02).nonzero().float()
+            pick = shell[torch.randint(0, len(shell), (len(rows) * n_points,), generator=gen)]
+            pick += torch.rand(pick.shape, generator=gen) - 0.5
+            centre = lookup.bounds_min[n] + (pick + 0.5) * voxel[n]
+            local[rows] = centre.reshape(len(rows), n_points, 3)
+    elif spread == "near":
+        local = (torch.rand(n_env, n_points, 3, generator=gen) - 0.5) * 0.3
+    elif spread == "cube":
+        assert lookup is not None, "spread='cube' needs the lookup's grid bounds"
+        lo = lookup.bounds_min[ids][:, None, :]
+        size = lookup.resolution / lookup.inv_voxel[ids][:, None, None]
+        local = lo + torch.rand(n_env, n_points, 3, generator=gen) * size
+    else:
+        raise ValueError(f"spread {spread!r}: one of {SPREADS}")
     pos = (torch.rand(n_env, 3, generator=gen) - 0.5) * 2.0
     quat = torch.randn(n_env, 4, generator=gen)
     quat = quat / quat.norm(dim=-1, keepdim=True)
-    ids = torch.randint(0, n_obj, (n_env,), generator=gen)
     world = torch.einsum("eij,ekj->eki", quat_to_matrix(quat), local) + pos[:, None, :]
     return world, pos, quat, ids, local
 
@@ -126,6 +165,13 @@ def main() -> None:
     parser.add_argument(
         "--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)"
     )
+    parser.add_argument(
+        "--spread",
+        choices=SPREADS,
+        default="surface",
+        help="fingertips within 2 cm of the surface (realistic), 15 cm of the origin, or "
+        "anywhere in the grid cube (worst case); see make_queries",
+    )
     args = parser.parse_args()
     if args.threads:
         # On a loaded 2-core machine 2 intra-op threads wait on each other at every op.
@@ -152,8 +198,10 @@ def main() -> None:
     lookup16 = SDFLookup(
         lookup32.grids, lookup32.bounds_min, 1.0 / lookup32.inv_voxel, dtype=torch.float16
     )
-    world, pos, quat, ids, local = make_queries(args.envs, args.points, n_obj)
-    print(f"{args.envs} envs x {args.points} points, {n_obj} objects")
+    world, pos, quat, ids, local = make_queries(
+        args.envs, args.points, n_obj, spread=args.spread, lookup=lookup32
+    )
+    print(f"{args.envs} envs x {args.points} points, {n_obj} objects, spread {args.spread}")
 
     devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
     with torch.no_grad():

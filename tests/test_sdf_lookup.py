@@ -16,7 +16,13 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from geomprep.sdf import SDFGrid, compute_sdf, voxel_centers
-from geomprep.sdf_lookup import FLOAT16_RELATIVE_ERROR, SDFLookup, naive_query, quat_to_matrix
+from geomprep.sdf_lookup import (
+    FLOAT16_RELATIVE_ERROR,
+    SDFLookup,
+    empty_grids,
+    naive_query,
+    quat_to_matrix,
+)
 
 YCB_DIR = Path(
     os.environ.get("GEOMPREP_YCB_DIR", Path(__file__).resolve().parents[2] / "shared" / "ycb")
@@ -216,3 +222,48 @@ def test_from_hdf5_roundtrip(tmp_path: Path, box: SDFGrid) -> None:
     assert lookup.grids.shape == (2, 80, 80, 80)
     np.testing.assert_allclose(lookup.grids[1].float().numpy(), box.grid, rtol=2**-11, atol=1e-7)
     np.testing.assert_allclose(lookup.inv_voxel.numpy(), 1 / box.voxel_size, rtol=1e-6)
+
+
+def test_query_input_layouts_and_dtypes(box: SDFGrid) -> None:
+    # float64, non-contiguous and int32 inputs give the float32 result; inputs are not modified.
+    lookup = _lookup(box)
+    rng = np.random.default_rng(2)
+    n_env, k = 33, 4
+    quats = torch.tensor(Rotation.random(n_env, random_state=2).as_quat()[:, [3, 0, 1, 2]])
+    pos = torch.tensor(rng.uniform(-1, 1, (n_env, 3)))
+    local = rng.uniform(-0.15, 0.15, (n_env, k, 3))
+    world = torch.einsum("eij,ekj->eki", quat_to_matrix(quats), torch.tensor(local)) + pos[:, None]
+    ids = torch.zeros(n_env, dtype=torch.long)
+    ref = lookup.query(world.float(), pos.float(), quats.float(), ids)
+    assert ref.shape == (n_env, k) and ref.dtype == torch.float32 and ref.is_contiguous()
+    # Non-contiguous views of the same values: every other row of a doubled batch.
+    world2 = world.repeat_interleave(2, dim=0)[::2]
+    before = world2.clone()
+    got = lookup.query(world2, pos.repeat_interleave(2, 0)[::2], 2.0 * quats, ids.int())
+    assert got.dtype == torch.float32 and torch.equal(world2, before)
+    np.testing.assert_allclose(got.numpy(), ref.numpy(), atol=1e-6)
+    local_t = torch.tensor(local)
+    np.testing.assert_allclose(
+        lookup.query_local(local_t.transpose(0, 1).contiguous().transpose(0, 1), ids).numpy(),
+        lookup.query_local(local_t.float(), ids).numpy(),
+        atol=1e-7,
+    )
+    expect = naive_query(box.grid[None], box.bounds_min[None], [box.voxel_size], local, ids)
+    np.testing.assert_allclose(ref.numpy(), expect, atol=2e-6)
+
+
+def test_empty_grids_used_in_place(box: SDFGrid) -> None:
+    grids = empty_grids((1, *box.grid.shape))
+    grids.numpy()[0] = box.grid
+    lookup = SDFLookup(grids, box.bounds_min[None], [box.voxel_size])
+    assert lookup.grids.data_ptr() == grids.data_ptr()
+    local = torch.tensor(
+        np.random.default_rng(3).uniform(-0.2, 0.2, (2, 7, 3)), dtype=torch.float32
+    )
+    ids = torch.zeros(2, dtype=torch.long)
+    np.testing.assert_array_equal(
+        lookup.query_local(local, ids).numpy(), _lookup(box).query_local(local, ids).numpy()
+    )
+    # Another dtype is copied (into fresh huge-page memory on Linux), not aliased.
+    half = SDFLookup(grids, box.bounds_min[None], [box.voxel_size], dtype=torch.float16)
+    assert half.grids.data_ptr() != grids.data_ptr() and half.grids.dtype == torch.float16
