@@ -22,9 +22,9 @@ YCB directory.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -68,32 +68,20 @@ def load_object(ycb_dir: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
 def fit_both(
     vertices: np.ndarray, faces: np.ndarray
 ) -> tuple[np.ndarray, sq.MeshOracle, dict[str, tuple[np.ndarray, float, dict[str, float]]]]:
-    """Sample the mesh like ``run_sq`` and fit both variants.
+    """Fit both variants exactly as the ``sq`` stage does (``superquadric.fit_mesh``).
 
-    Returns the fit's points (N, 3) m, the mesh oracle, and per variant (params (11,), seconds
-    of the fit alone, quality dict from ``fit_quality``).
+    Returns the mesh's surface samples (N, 3) m, the mesh oracle, and per variant (params (11,),
+    seconds of fitting, without the quality report, diagnostics and quality dict).
     """
     cfg = Config().sq
-    rng = np.random.default_rng(cfg.seed)
-    points, normals = pointcloud.sample_uniform(vertices, faces, cfg.num_points, rng)
-    oracle = sq.MeshOracle(vertices, faces)
     out: dict[str, tuple[np.ndarray, float, dict[str, float]]] = {}
     for variant in VARIANTS:
         weight = cfg.surface_weight if variant == "ems+surface" else 0.0
-        start = time.perf_counter()
-        params, _ = sq.fit_superquadric(
-            points,
-            normals,
-            outlier_ratio=cfg.outlier_ratio,
-            max_iters=cfg.max_iters,
-            seed=cfg.seed,
-            surface_closest_fn=oracle.closest if weight > 0 else None,
-            surface_weight=weight,
-            surface_samples=cfg.surface_samples,
-        )
-        seconds = time.perf_counter() - start
-        out[variant] = (params, seconds, sq.fit_quality(params, points, oracle, seed=cfg.seed))
-    return points, oracle, out
+        params, info = sq.fit_mesh(vertices, faces, dataclasses.replace(cfg, surface_weight=weight))
+        out[variant] = (params, info["fit_seconds"], info)
+    rng = np.random.default_rng(cfg.seed)
+    points, _ = pointcloud.sample_uniform(vertices, faces, cfg.n_points, rng)
+    return points, sq.MeshOracle(vertices, faces), out
 
 
 def figure(

@@ -26,7 +26,7 @@ from geomprep.config import MJCFParams
 from geomprep.decompose import Hull
 from geomprep.errors import GeomprepError
 
-VERSION = 1
+VERSION = 2
 
 
 def _fmt(values: np.ndarray | tuple[float, ...] | list[float]) -> str:

@@ -223,7 +223,10 @@ def run_mjcf(cfg: Config, name: str) -> Groups:
         "settle_final_height_m": settle.final_height_m,
         "settle_lowest_point_m": settle.lowest_point_m,
         "settle_final_speed_m_s": settle.final_speed_m_s,
+        "settle_start_height_m": settle.start_height_m,
         "settle_max_height_m": settle.max_height_m,
+        "settled": settle.final_speed_m_s < 0.01
+        and settle.max_height_m <= settle.start_height_m + 1e-3,
     }
     return {"mjcf": ({}, attrs)}
 
@@ -251,37 +254,8 @@ def run_bbox(cfg: Config, name: str) -> Groups:
 
 def run_sq(cfg: Config, name: str) -> Groups:
     vertices, faces = _load_mesh(cfg, name)
-    params = cfg.sq
-    rng = np.random.default_rng(params.seed)
-    points, normals = pointcloud.sample_uniform(vertices, faces, params.n_points, rng)
-    oracle = superquadric.MeshOracle(vertices, faces)
-    fit_kwargs = {
-        k: v
-        for k, v in params_dict(params).items()
-        if k not in ("min_inlier_fraction", "fallback_weight_factor")
-    }
-
-    def fit(surface_weight: float) -> tuple[np.ndarray, dict[str, float]]:
-        return superquadric.fit_superquadric(
-            points,
-            normals,
-            surface_closest_fn=oracle.closest,
-            **{**fit_kwargs, "surface_weight": surface_weight},
-        )
-
-    sq_params, info = fit(params.surface_weight)
-    weight = params.surface_weight
-    if weight > 0 and info["inlier_fraction"] < params.min_inlier_fraction:
-        weight *= params.fallback_weight_factor
-        sq_params, info = fit(weight)
-    # Quality of the fit: two-sided distances (metres) mesh -> superquadric and superquadric ->
-    # mesh (mean, 95th percentile) and the volume IoU against the mesh's solid.
-    info = {
-        **info,
-        "surface_weight_used": weight,
-        **superquadric.fit_quality(sq_params, points, oracle, seed=params.seed),
-    }
-    return {"superquadric": ({"params": np.asarray(sq_params, dtype=np.float64)}, dict(info))}
+    params, info = superquadric.fit_mesh(vertices, faces, cfg.sq)
+    return {"superquadric": ({"params": np.asarray(params, dtype=np.float64)}, dict(info))}
 
 
 def run_pc(cfg: Config, name: str) -> Groups:
