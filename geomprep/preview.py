@@ -15,6 +15,11 @@ import numpy as np
 from geomprep import decompose, store, superquadric
 
 
+def _mm(metres: np.ndarray) -> list[float]:
+    """Lengths in mm, one decimal, as plain floats (float32 would print 132.3000030517578)."""
+    return np.round(np.asarray(metres, dtype=np.float64) * 1000, 1).tolist()
+
+
 def summary(path: Path) -> str:
     """Human-readable lines: mass, size, hulls, box, superquadric, SDF and settle facts."""
     with h5py.File(path, "r") as f:
@@ -39,10 +44,9 @@ def summary(path: Path) -> str:
             f"mjcf        {j['xml']}: settled at "
             f"{float(j['settle_final_height_m']) * 1000:.1f} mm, "
             f"speed {float(j['settle_final_speed_m_s']) * 1000:.2f} mm/s",
-            f"bbox        extents {np.round(b['extents'][()] * 1000, 1).tolist()} mm, "
+            f"bbox        extents {_mm(b['extents'][()])} mm, "
             f"{float(b.attrs['contained_fraction']) * 100:.1f}% of vertices inside",
-            f"superquad.  eps {params[0]:.2f}, {params[1]:.2f}; "
-            f"semi-axes {np.round(params[2:5] * 1000, 1).tolist()} mm",
+            f"superquad.  eps {params[0]:.2f}, {params[1]:.2f}; semi-axes {_mm(params[2:5])} mm",
             _sq_quality_line(dict(s.attrs)),
             f"sdf         {g['grid'].shape}, "
             f"voxel {float(grid_attrs['voxel_size']) * 1000:.2f} mm, "
