@@ -67,10 +67,10 @@ def load_object(ycb_dir: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
 
 def fit_both(
     vertices: np.ndarray, faces: np.ndarray
-) -> tuple[np.ndarray, sq.MeshOracle, dict[str, tuple[np.ndarray, float, dict[str, float]]]]:
+) -> tuple[sq.MeshOracle, dict[str, tuple[np.ndarray, float, dict[str, float]]]]:
     """Fit both variants exactly as the ``sq`` stage does (``superquadric.fit_mesh``).
 
-    Returns the mesh's surface samples (N, 3) m, the mesh oracle, and per variant (params (11,),
+    Returns the mesh oracle (for the figures) and per variant (params (11,),
     seconds of fitting, without the quality report, diagnostics and quality dict).
     """
     cfg = Config().sq
@@ -79,9 +79,7 @@ def fit_both(
         weight = cfg.surface_weight if variant == "ems+surface" else 0.0
         params, info = sq.fit_mesh(vertices, faces, dataclasses.replace(cfg, surface_weight=weight))
         out[variant] = (params, info["fit_seconds"], info)
-    rng = np.random.default_rng(cfg.seed)
-    points, _ = pointcloud.sample_uniform(vertices, faces, cfg.n_points, rng)
-    return points, sq.MeshOracle(vertices, faces), out
+    return sq.MeshOracle(vertices, faces), out
 
 
 def figure(
@@ -232,7 +230,7 @@ def main() -> None:
     results = {}
     for name in names:
         vertices, faces = load_object(args.ycb_dir, name)
-        _, oracle, fits = fit_both(vertices, faces)
+        oracle, fits = fit_both(vertices, faces)
         results[name] = fits
         print(_row(name, fits), flush=True)
         if args.figures is not None and name in FIGURE_OBJECTS:

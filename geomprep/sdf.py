@@ -35,7 +35,6 @@ plate, fork, mug wall), so consumers can treat the zero level set there as under
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -143,22 +142,6 @@ def _validate(
             "or raise the SDF extent"
         )
     return verts, tris
-
-
-def mesh_distance_function(
-    vertices: np.ndarray, faces: np.ndarray
-) -> Callable[[np.ndarray], np.ndarray]:
-    """Exact unsigned distance to the mesh surface, as a function of (N, 3) points (metres).
-
-    The returned function maps (N, 3) float points to (N,) float64 distances, metres.
-    """
-    scene = _make_scene(np.asarray(vertices, dtype=np.float64), np.asarray(faces))
-
-    def distance(points: np.ndarray) -> np.ndarray:
-        query = o3d.core.Tensor(np.asarray(points, dtype=np.float32))
-        return scene.compute_distance(query).numpy().astype(np.float64)
-
-    return distance
 
 
 def _make_scene(verts: np.ndarray, tris: np.ndarray) -> o3d.t.geometry.RaycastingScene:

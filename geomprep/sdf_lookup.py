@@ -118,7 +118,6 @@ class SDFLookup(torch.nn.Module):
     bounds_min: torch.Tensor
     inv_voxel: torch.Tensor
     shift: torch.Tensor
-    index_strides: torch.Tensor
     corner_offsets: torch.Tensor
 
     def __init__(
@@ -160,8 +159,6 @@ class SDFLookup(torch.nn.Module):
         # u = p / voxel + shift puts voxel i's centre at u = i.
         self.register_buffer("shift", -bounds / voxel[:, None] - 0.5)
         r = self.resolution
-        # Integer, not a float matmul: TF32 matmuls (if the trainer enables them) would round it.
-        self.register_buffer("index_strides", torch.tensor([r * r, r, 1], dtype=torch.long))
         # Flat-index steps to the 8 cell corners, in (di, dj, dk) C order, the order the lerps
         # in query_local consume them.
         steps = [di * r * r + dj * r + dk for di in (0, 1) for dj in (0, 1) for dk in (0, 1)]
@@ -212,16 +209,6 @@ class SDFLookup(torch.nn.Module):
         """Bytes held by the grid stack."""
         return self.grids.numel() * self.grids.element_size()
 
-    def forward(
-        self,
-        points_world: torch.Tensor,
-        object_pos: torch.Tensor,
-        object_quat: torch.Tensor,
-        object_ids: torch.Tensor,
-    ) -> torch.Tensor:
-        """Same as ``query``."""
-        return self.query(points_world, object_pos, object_quat, object_ids)
-
     def query(
         self,
         points_world: torch.Tensor,
@@ -248,6 +235,8 @@ class SDFLookup(torch.nn.Module):
         u = torch.addcmul(shift, a[:, 0], d[0])
         u.addcmul_(a[:, 1], d[1]).addcmul_(a[:, 2], d[2])
         return self._interpolate(u, ids)
+
+    forward = query  # calling the module is querying it
 
     def _world_to_voxel(self, object_quat: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
         """(3, 3, E): R^T / voxel per env, R from the (w, x, y, z) quaternions (E, 4).

@@ -25,10 +25,10 @@ written from the paper's description, not from the reference code.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
-from typing import Any
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -38,6 +38,8 @@ from threadpoolctl import threadpool_limits
 
 from geomprep.config import SQParams
 from geomprep.errors import GeomprepError
+
+T = TypeVar("T")
 
 # Bump when the output for the same input changes (the pipeline's cache key uses it).
 VERSION = 2
@@ -345,12 +347,16 @@ def sample_surface(params: np.ndarray, n: int, seed: int = 0, oversample: int = 
 # --------------------------------------------------------------------------------------------
 
 
-@contextmanager
-def _single_thread_blas() -> Iterator[None]:
-    """Run BLAS/LAPACK single-threaded: the fit's matrices are tiny (1500 x 11), and OpenBLAS
-    worker threads made it 10-20x slower on a busy 2-core machine."""
-    with threadpool_limits(limits=1, user_api="blas"):
-        yield
+def _single_threaded_blas(fit: Callable[..., T]) -> Callable[..., T]:
+    """Run ``fit`` with BLAS/LAPACK single-threaded: the fit's matrices are tiny (1500 x 11),
+    and OpenBLAS worker threads made it 10-20x slower on a busy 2-core machine."""
+
+    @functools.wraps(fit)
+    def wrapper(*args: Any, **kwargs: Any) -> T:
+        with threadpool_limits(limits=1, user_api="blas"):
+            return fit(*args, **kwargs)
+
+    return wrapper
 
 
 class _State:
@@ -631,6 +637,7 @@ def _relative_change(old: _State, new: _State, size: float) -> float:
     )
 
 
+@_single_threaded_blas
 def fit_superquadric(
     points: np.ndarray,
     normals: np.ndarray | None = None,
@@ -702,74 +709,6 @@ def fit_superquadric(
         0.0 if ``max_iters`` ran out), ``n_points``, ``seconds`` and, with a surface term,
         ``surface_mean_m`` (mean distance of the superquadric's samples to the object).
     """
-    with _single_thread_blas():
-        return _fit(
-            points,
-            normals,
-            outlier_ratio=outlier_ratio,
-            max_iters=max_iters,
-            seed=seed,
-            n_points=n_points,
-            tol=tol,
-            max_switches=max_switches,
-            m_step_nfev=m_step_nfev,
-            switch_nfev=switch_nfev,
-            switch_every=switch_every,
-            surface_distance_fn=surface_distance_fn,
-            surface_closest_fn=surface_closest_fn,
-            surface_weight=surface_weight,
-            surface_samples=surface_samples,
-        )
-
-
-def _check_options(
-    outlier_ratio: float,
-    max_iters: int,
-    n_points: int,
-    tol: float,
-    max_switches: int,
-    m_step_nfev: int,
-    switch_nfev: int,
-    switch_every: int,
-    surface_weight: float,
-    surface_samples: int,
-) -> None:
-    """Raise GeomprepError with the fix for any out-of-range fitting option."""
-    checks = [
-        (0.0 <= outlier_ratio < 1.0, f"outlier_ratio must be in [0, 1), got {outlier_ratio}"),
-        (max_iters >= 1, f"max_iters must be >= 1, got {max_iters}"),
-        (n_points >= MIN_POINTS, f"n_points must be >= {MIN_POINTS}, got {n_points}"),
-        (tol > 0, f"tol must be > 0, got {tol}"),
-        (max_switches >= 0, f"max_switches must be >= 0, got {max_switches}"),
-        (m_step_nfev >= 1 and switch_nfev >= 1, "m_step_nfev and switch_nfev must be >= 1"),
-        (switch_every >= 0, f"switch_every must be >= 0, got {switch_every}"),
-        (surface_weight >= 0, f"surface_weight must be >= 0, got {surface_weight}"),
-        (surface_samples >= 1, f"surface_samples must be >= 1, got {surface_samples}"),
-    ]
-    for ok, message in checks:
-        if not ok:
-            raise GeomprepError(f"{message}: fix the call or the [sq] config")
-
-
-def _fit(
-    points: np.ndarray,
-    normals: np.ndarray | None,
-    *,
-    outlier_ratio: float,
-    max_iters: int,
-    seed: int,
-    n_points: int,
-    tol: float,
-    max_switches: int,
-    m_step_nfev: int,
-    switch_nfev: int,
-    switch_every: int,
-    surface_distance_fn: Callable[[np.ndarray], np.ndarray] | None,
-    surface_closest_fn: Callable[[np.ndarray], np.ndarray] | None,
-    surface_weight: float,
-    surface_samples: int,
-) -> tuple[np.ndarray, dict[str, float]]:
-    """Body of :func:`fit_superquadric` (arguments as documented there)."""
     start = time.perf_counter()
     pts = _check_points(points)
     if len(pts) < MIN_POINTS:
@@ -862,6 +801,35 @@ def _fit(
         diag["surface_mean_m"] = float(np.mean(oracle.distance(surf)))
     diag["seconds"] = time.perf_counter() - start
     return state.params(), diag
+
+
+def _check_options(
+    outlier_ratio: float,
+    max_iters: int,
+    n_points: int,
+    tol: float,
+    max_switches: int,
+    m_step_nfev: int,
+    switch_nfev: int,
+    switch_every: int,
+    surface_weight: float,
+    surface_samples: int,
+) -> None:
+    """Raise GeomprepError with the fix for any out-of-range fitting option."""
+    checks = [
+        (0.0 <= outlier_ratio < 1.0, f"outlier_ratio must be in [0, 1), got {outlier_ratio}"),
+        (max_iters >= 1, f"max_iters must be >= 1, got {max_iters}"),
+        (n_points >= MIN_POINTS, f"n_points must be >= {MIN_POINTS}, got {n_points}"),
+        (tol > 0, f"tol must be > 0, got {tol}"),
+        (max_switches >= 0, f"max_switches must be >= 0, got {max_switches}"),
+        (m_step_nfev >= 1 and switch_nfev >= 1, "m_step_nfev and switch_nfev must be >= 1"),
+        (switch_every >= 0, f"switch_every must be >= 0, got {switch_every}"),
+        (surface_weight >= 0, f"surface_weight must be >= 0, got {surface_weight}"),
+        (surface_samples >= 1, f"surface_samples must be >= 1, got {surface_samples}"),
+    ]
+    for ok, message in checks:
+        if not ok:
+            raise GeomprepError(f"{message}: fix the call or the [sq] config")
 
 
 def _try_switch(
