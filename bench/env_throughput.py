@@ -1,0 +1,63 @@
+"""Environment steps per second of ``GraspEnv`` next to raw MuJoCo stepping of the same models.
+
+For each env count and representation: the full env step (JT control in torch, batched physics,
+observations, reward), and in the same run the backend stepping the same models with the same
+substeps and held controls and nothing else. Prints both and the ratio (target >= 0.70).
+
+    python bench/env_throughput.py [--envs 64,256,1024] [--reprs com,sdf,...] [--objects builtin]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+
+import torch
+from tensordict import TensorDict
+
+from trainer.config import REPRESENTATIONS, load_env_config
+from trainer.env import GraspEnv
+
+
+def measure(env: GraspEnv, steps: int) -> tuple[float, float]:
+    """(env steps/s, raw steps/s), each env step = one action of every env."""
+    env.reset()
+    gen = torch.Generator().manual_seed(0)
+    actions = [torch.rand(env.num_envs, 11, generator=gen) * 2 - 1 for _ in range(steps)]
+    env.step(TensorDict({"action": actions[0]}, batch_size=env.batch_size))
+    start = time.perf_counter()
+    for action in actions:
+        td = env.step(TensorDict({"action": action}, batch_size=env.batch_size))
+        env.reset(TensorDict({"_reset": td["next", "done"]}, batch_size=env.batch_size))
+    env_rate = env.num_envs * steps / (time.perf_counter() - start)
+    start = time.perf_counter()
+    for _ in range(steps):
+        env.backend.raw_step()
+    raw_rate = env.num_envs * steps / (time.perf_counter() - start)
+    return env_rate, raw_rate
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--envs", default="64,256,1024")
+    parser.add_argument("--reprs", default=",".join(REPRESENTATIONS))
+    parser.add_argument("--objects", default="builtin")
+    parser.add_argument("--robot", default="ur5e")
+    parser.add_argument("--steps", type=int, default=20)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    print(f"{'envs':>6} {'repr':>6} {'env steps/s':>12} {'raw steps/s':>12} {'ratio':>6}")
+    for n in (int(v) for v in args.envs.split(",")):
+        for rep in args.reprs.split(","):
+            cfg = load_env_config(num_envs=n, representation=rep, objects=args.objects)
+            cfg = dataclasses.replace(cfg, robot=dataclasses.replace(cfg.robot, kind=args.robot))
+            env = GraspEnv(cfg)
+            env_rate, raw_rate = measure(env, args.steps)
+            env.close()
+            ratio = env_rate / raw_rate
+            print(f"{n:>6} {rep:>6} {env_rate:>12.0f} {raw_rate:>12.0f} {ratio:>6.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,153 @@
+"""The batched grasping environment on the built-in objects: specs, resets, observations that
+move with the object, and the paper's reward against a hand computation."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import h5py
+import numpy as np
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.envs.utils import check_env_specs
+
+from geomprep.config import Config
+from geomprep.sdf_lookup import naive_query
+from trainer.config import REPRESENTATIONS, load_env_config
+from trainer.env import GraspEnv
+from trainer.representations import object_representation, representation_shape
+from trainer.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix
+
+
+@pytest.fixture(scope="module")
+def env(builtin_data: Config) -> GraspEnv:
+    cfg = load_env_config(
+        num_envs=7, objects="builtin", representation="sdf", data_dir=builtin_data.data_dir
+    )
+    environment = GraspEnv(cfg, seed=0)
+    yield environment
+    environment.close()
+
+
+def test_specs_and_rollout(env: GraspEnv) -> None:
+    check_env_specs(env)
+    rollout = env.rollout(5, break_when_any_done=False)
+    assert rollout["next", "reward"].shape == (7, 5, 1)
+    assert torch.isfinite(rollout["next", "reward"]).all()
+    assert rollout["next", "proprio"].shape == (7, 5, 20)
+    # Every built-in object is in some environment.
+    assert sorted(env.env_object.tolist()) == list(range(7))
+
+
+def test_partial_reset_touches_only_masked_envs(env: GraspEnv) -> None:
+    env.reset()
+    action = torch.zeros(7, 11)
+    action[:, 2] = 1.0  # hands move up
+    for _ in range(3):
+        env.step(TensorDict({"action": action}, batch_size=[7]))
+    before = env.backend.qpos.clone()
+    mask = torch.zeros(7, 1, dtype=torch.bool)
+    mask[2] = True
+    env.reset(TensorDict({"_reset": mask}, batch_size=[7]))
+    after = env.backend.qpos
+    assert env.step_count.tolist() == [3, 3, 0, 3, 3, 3, 3]
+    assert torch.equal(after[mask[:, 0].logical_not()], before[mask[:, 0].logical_not()])
+    torch.testing.assert_close(after[2, :6], env.home_qpos[:6])
+
+
+def test_reward_matches_hand_computation(env: GraspEnv) -> None:
+    env.reset()
+    td = env.step(TensorDict({"action": torch.zeros(7, 11)}, batch_size=[7]))["next"]
+    r = env.cfg.reward
+    lift = td["lift_height"][:, 0]
+    distances = td["object"]  # the sdf representation: 5 fingertip distances
+    # Independent check of the distances: the naive (unoptimised) grid lookup.
+    qpos = env.backend.qpos
+    tips = env.kinematics.forward(qpos).site_pos[:, 1:]
+    pos = qpos[:, env.obj_qpos : env.obj_qpos + 3]
+    quat = qpos[:, env.obj_qpos + 3 : env.obj_qpos + 7]
+    local = (tips - pos[:, None]) @ quat_to_matrix(quat)
+    grids, lows, voxels = [], [], []
+    for path in env.objects.h5_paths:
+        with h5py.File(path, "r") as f:
+            grids.append(f["sdf/grid"][:])
+            lows.append(np.asarray(f["sdf"].attrs["bounds_min"]))
+            voxels.append(float(np.atleast_1d(f["sdf"].attrs["voxel_size"])[0]))
+    naive = naive_query(
+        np.stack(grids), np.stack(lows), np.array(voxels), local.double().numpy(),
+        env.env_object.numpy(),
+    )
+    torch.testing.assert_close(distances.double(), torch.from_numpy(naive), atol=1e-4, rtol=0)
+    expected = (
+        r.c1 / ((r.h_bar - lift).abs() + r.eps_h)
+        + r.c2 * (lift >= r.h_bar).float()
+        + r.c3 / (distances.clamp_min(0).sum(-1) + r.eps_sdf)
+    )
+    torch.testing.assert_close(td["reward"][:, 0], expected)
+    torch.testing.assert_close(
+        td["reward_lift"] + td["reward_success"] + td["reward_contact"], td["reward"]
+    )
+    assert not td["success"].any() and not td["done"].any()
+
+
+@pytest.mark.parametrize("reward", ["com", "none"])
+def test_reward_ablations(builtin_data: Config, reward: str) -> None:
+    cfg = load_env_config(num_envs=2, objects="builtin_box,builtin_mug", representation="com",
+                          data_dir=builtin_data.data_dir)
+    cfg = dataclasses.replace(cfg, reward=dataclasses.replace(cfg.reward, kind=reward))
+    environment = GraspEnv(cfg)
+    environment.reset()
+    td = environment.step(TensorDict({"action": torch.zeros(2, 11)}, batch_size=[2]))["next"]
+    if reward == "none":
+        assert (td["reward_contact"] == 0).all()
+    else:
+        qpos = environment.backend.qpos
+        tips = environment.kinematics.forward(qpos).site_pos[:, 1:]
+        com = qpos[:, environment.obj_qpos : environment.obj_qpos + 3]
+        expected = 1.0 / ((tips - com[:, None]).norm(dim=-1).sum(-1) + 0.025)
+        torch.testing.assert_close(td["reward_contact"][:, 0], expected)
+    environment.close()
+
+
+@pytest.mark.parametrize("name", REPRESENTATIONS)
+def test_representations_move_with_the_object(env: GraspEnv, name: str) -> None:
+    ids = torch.arange(7)
+    gen = torch.Generator().manual_seed(3)
+    pos_a = torch.rand(7, 3, generator=gen) * 0.2
+    rot_a = axis_angle_to_matrix(torch.randn(7, 3, generator=gen))
+    tips_local = torch.randn(7, 5, 3, generator=gen) * 0.05
+    move = axis_angle_to_matrix(torch.randn(7, 3, generator=gen))
+    shift = torch.randn(7, 3, generator=gen) * 0.1
+    pos_b = (move @ pos_a[..., None])[..., 0] + shift
+    rot_b = move @ rot_a
+
+    def rep(pos: torch.Tensor, rot: torch.Tensor) -> torch.Tensor:
+        tips = tips_local @ rot.transpose(1, 2) + pos[:, None]
+        return object_representation(name, env.objects, ids, pos, matrix_to_quat(rot), tips)
+
+    a, b = rep(pos_a, rot_a), rep(pos_b, rot_b)
+    assert a.shape == (7, *representation_shape(name))
+    apply = lambda x: (move @ x[..., None])[..., 0] + shift  # noqa: E731
+    if name == "com":
+        torch.testing.assert_close(b[:, :3], apply(a[:, :3]), atol=1e-5, rtol=0)
+    elif name == "bbox":
+        torch.testing.assert_close(b[:, :3], apply(a[:, :3]), atol=1e-5, rtol=0)
+        torch.testing.assert_close(
+            quat_to_matrix(b[:, 3:7]), move @ quat_to_matrix(a[:, 3:7]), atol=1e-5, rtol=0
+        )
+        torch.testing.assert_close(b[:, 7:], a[:, 7:])
+    elif name == "sq":
+        torch.testing.assert_close(b[:, :5], a[:, :5])
+        torch.testing.assert_close(b[:, 8:], apply(a[:, 8:]), atol=1e-5, rtol=0)
+        from trainer.representations import _euler_xyz_to_matrix
+
+        torch.testing.assert_close(
+            _euler_xyz_to_matrix(b[:, 5:8]), move @ _euler_xyz_to_matrix(a[:, 5:8]),
+            atol=1e-5, rtol=0,
+        )
+    elif name.startswith("pc"):
+        torch.testing.assert_close(b, a @ move.transpose(1, 2) + shift[:, None], atol=1e-5, rtol=0)
+    else:  # sdf: fingertips fixed to the object see the same distances wherever it is
+        torch.testing.assert_close(b, a, atol=1e-4, rtol=0)
+        assert (a.abs() < 0.5).all()

@@ -1,0 +1,219 @@
+"""The lifting scene: table, robot (UR5e + SIH hand, or the hand on a floating base) and one
+object from geomprep's MJCF directory, assembled with ``mujoco.MjSpec``.
+
+World frame: the table top is the plane z = 0 around the origin; the UR5e base stands at
+``RobotConfig.base_pos``; the object rests near the origin.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from trainer import constants as C
+from trainer.assets.arm import add_ur5e, dh_forward, flange_to_palm
+from trainer.assets.hand import add_sih_hand
+from trainer.config import EnvConfig, PhysicsConfig
+from trainer.errors import TrainerError
+
+FLOOR_Z = -0.75
+OBJECT_PREFIX = "object/"
+# Palm-down pose of the hand at reset, as in the authors' home configuration: palmar side
+# (+y_palm) faces the table, fingers (+z_palm) point away from the robot (-y), thumb toward -x.
+# Columns are the palm axes in the world frame.
+PALM_DOWN = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])
+
+
+def _matrix_to_quat(rot: np.ndarray) -> np.ndarray:
+    quat = np.empty(4)
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(rot, dtype=np.float64).ravel())
+    return quat
+
+
+def _quat_to_matrix(quat: np.ndarray) -> np.ndarray:
+    rot = np.empty(9)
+    mujoco.mju_quat2Mat(rot, np.asarray(quat, dtype=np.float64))
+    return rot.reshape(3, 3)
+
+
+def _options(spec: mujoco.MjSpec, cfg: EnvConfig) -> None:
+    spec.compiler.degree = False  # every angle in this package is in radians
+    spec.option.timestep = cfg.timestep
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    spec.option.iterations = cfg.physics.iterations
+    spec.option.ls_iterations = cfg.physics.ls_iterations
+    spec.visual.global_.offwidth = 640
+    spec.visual.global_.offheight = 480
+
+
+def _add_table(spec: mujoco.MjSpec, physics: PhysicsConfig) -> None:
+    world = spec.worldbody
+    light = world.add_light()
+    light.pos = (0.0, -0.5, 1.5)
+    light.dir = (0.0, 0.3, -1.0)
+    floor = world.add_geom()
+    floor.name = "floor"
+    floor.type = mujoco.mjtGeom.mjGEOM_PLANE
+    floor.size = (3.0, 3.0, 0.1)
+    floor.pos = (0.0, 0.0, FLOOR_Z)
+    floor.rgba = (0.35, 0.35, 0.4, 1.0)
+    table = world.add_geom()
+    table.name = "table"
+    table.type = mujoco.mjtGeom.mjGEOM_BOX
+    table.size = physics.table_size
+    table.pos = (0.0, 0.0, -physics.table_size[2])
+    table.rgba = (0.75, 0.65, 0.5, 1.0)
+    table.friction = physics.table_friction
+    for geom in (floor, table):
+        geom.contype = C.BIT_STATIC
+        geom.conaffinity = C.BIT_OBJECT | C.BIT_ARM | C.BIT_HAND
+        geom.condim = physics.condim
+    camera = world.add_camera()
+    camera.name = "front"
+    camera.pos = (0.75, -0.75, 0.55)
+    x_axis = np.array([0.7071, 0.7071, 0.0])
+    y_axis = np.array([-0.28, 0.28, 0.92])
+    y_axis /= np.linalg.norm(y_axis)
+    camera.quat = _matrix_to_quat(np.stack([x_axis, y_axis, np.cross(x_axis, y_axis)], axis=1))
+
+
+def add_object(spec: mujoco.MjSpec, xml_path: Path, physics: PhysicsConfig) -> str:
+    """Attach geomprep's object model (a body with a free joint, named after the object) at the
+    world origin; return the body name (``OBJECT_PREFIX + name``). Its collision hulls get the
+    scene's contact settings."""
+    if not xml_path.is_file():
+        raise TrainerError(
+            f"object model {xml_path} not found: build it with `geomprep build-all --objects "
+            f"{xml_path.stem}`"
+        )
+    name = xml_path.stem
+    child = mujoco.MjSpec.from_file(str(xml_path))
+    frame = spec.worldbody.add_frame()
+    body = frame.attach_body(child.body(name), OBJECT_PREFIX, "")
+    for geom in body.geoms:
+        if geom.contype == 0 and geom.conaffinity == 0:
+            continue  # the visual mesh
+        geom.contype = C.BIT_OBJECT
+        geom.conaffinity = C.BIT_STATIC | C.BIT_OBJECT | C.BIT_ARM | C.BIT_HAND
+        geom.friction = physics.object_friction
+        geom.condim = physics.condim
+        geom.solref = physics.solref
+        geom.solimp = physics.solimp
+    return body.name
+
+
+def home_palm_pose(cfg: EnvConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The reset pose of the palm keypoint: ``home_hand_height`` above the table centre, palm
+    down. Returns (pos (3,) m, rotation (3, 3)) of the *palm frame* in the world."""
+    keypoint = np.array([0.0, 0.0, cfg.robot.home_hand_height])
+    palm_pos = keypoint - PALM_DOWN @ np.array(C.SIH_PALM_KEYPOINT)
+    return palm_pos, PALM_DOWN
+
+
+def ur5e_home_joints(cfg: EnvConfig, iterations: int = 300) -> np.ndarray:
+    """Arm joints that put the palm at ``home_palm_pose`` (damped least squares on the DH model,
+    started from the authors' home configuration so the elbow stays up)."""
+    target_pos, target_rot = home_palm_pose(cfg)
+    offset_pos, offset_quat = flange_to_palm()
+    offset_rot = _quat_to_matrix(offset_quat)
+    base = np.array(cfg.robot.base_pos)
+
+    def palm(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        tool = dh_forward(q)
+        return base + tool[:3, :3] @ offset_pos + tool[:3, 3], tool[:3, :3] @ offset_rot
+
+    def error(q: np.ndarray) -> np.ndarray:
+        pos, rot = palm(q)
+        rot_err = np.empty(3)
+        mujoco.mju_subQuat(rot_err, _matrix_to_quat(target_rot), _matrix_to_quat(rot))
+        return np.concatenate([target_pos - pos, rot_err])
+
+    q = np.array(C.UR5E_HOME, dtype=np.float64)
+    for _ in range(iterations):
+        e = error(q)
+        if np.linalg.norm(e) < 1e-9:
+            break
+        jac = np.empty((6, 6))
+        for j in range(6):
+            dq = np.zeros(6)
+            dq[j] = 1e-6
+            jac[:, j] = (e - error(q + dq)) / 1e-6
+        q = q + jac.T @ np.linalg.solve(jac @ jac.T + 1e-6 * np.eye(6), e)
+    if np.linalg.norm(error(q)) > 1e-5:
+        raise TrainerError(
+            f"the UR5e cannot reach the home hand pose from base {cfg.robot.base_pos}: "
+            "move [robot] base_pos or home_hand_height"
+        )
+    return (q + math.pi) % (2 * math.pi) - math.pi
+
+
+def build_scene(cfg: EnvConfig, object_xml: Path | None) -> mujoco.MjSpec:
+    """The full task scene as an ``MjSpec`` (compile with ``.compile()``).
+
+    Robot ``ur5e``: the arm with the hand on its flange, 6 arm position actuators first, then the
+    5 hand actuators. Robot ``floating``: the hand on a free body ``hand_base`` (at the palm
+    keypoint) welded to the mocap body ``hand_target``; only the 5 hand actuators.
+    """
+    spec = mujoco.MjSpec()
+    spec.modelname = "lift"
+    _options(spec, cfg)
+    _add_table(spec, cfg.physics)
+    palm_pos, palm_rot = home_palm_pose(cfg)
+    if cfg.robot.kind == "ur5e":
+        last_link = add_ur5e(spec, cfg.physics, cfg.robot)
+        offset_pos, offset_quat = flange_to_palm()
+        flange_pos = np.array([C.UR5E_DH_A[5], 0.0, C.UR5E_DH_D[5]])
+        add_sih_hand(spec, last_link, flange_pos + offset_pos, offset_quat, cfg.physics, cfg.robot)
+        for link in spec.bodies:
+            if link.name.endswith("_link"):
+                for geom in link.geoms:
+                    geom.condim = cfg.physics.condim
+    else:
+        keypoint = palm_pos + palm_rot @ np.array(C.SIH_PALM_KEYPOINT)
+        quat = _matrix_to_quat(palm_rot)
+        target = spec.worldbody.add_body()
+        target.name = "hand_target"
+        target.mocap = True
+        target.pos = keypoint
+        target.quat = quat
+        base = spec.worldbody.add_body()
+        base.name = "hand_base"
+        base.pos = keypoint
+        base.quat = quat
+        base.gravcomp = 1.0
+        base.add_freejoint().name = "hand_free"
+        inertial_geom = base.add_geom()
+        inertial_geom.type = mujoco.mjtGeom.mjGEOM_SPHERE
+        inertial_geom.size = (0.01, 0, 0)
+        inertial_geom.mass = 0.5
+        inertial_geom.contype = 0
+        inertial_geom.conaffinity = 0
+        inertial_geom.group = 4
+        add_sih_hand(
+            spec, base, -np.array(C.SIH_PALM_KEYPOINT), (1.0, 0.0, 0.0, 0.0), cfg.physics,
+            cfg.robot,
+        )
+        weld = spec.add_equality()
+        weld.name = "hand_weld"
+        weld.type = mujoco.mjtEq.mjEQ_WELD
+        weld.objtype = mujoco.mjtObj.mjOBJ_BODY
+        weld.name1 = "hand_base"
+        weld.name2 = "hand_target"
+        weld.solref = cfg.robot.weld_solref
+    if object_xml is not None:
+        add_object(spec, object_xml, cfg.physics)
+    return spec
+
+
+def build_object_scene(cfg: EnvConfig, object_xml: Path) -> mujoco.MjSpec:
+    """Table and object only: used to drop and settle objects for the initial-state bank."""
+    spec = mujoco.MjSpec()
+    spec.modelname = "drop"
+    _options(spec, cfg)
+    _add_table(spec, cfg.physics)
+    add_object(spec, object_xml, cfg.physics)
+    return spec

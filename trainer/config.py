@@ -1,0 +1,201 @@
+"""Every knob of the simulation and the task, as data (frozen dataclasses with defaults).
+
+``load_env_config`` overrides any field from a TOML file, one section per dataclass::
+
+    [reward]
+    c3 = 0.0
+    [physics]
+    substeps = 12
+
+Physics choices (documented here because they decide whether a grasp holds): MuJoCo's
+``implicitfast`` integrator, elliptic friction cones with ``condim = 4`` (torsional friction
+keeps a pinched object from spinning out), sliding friction 1.0 for fingers and objects and 0.8
+for the table, the arm and hand gravity-compensated (the arm's PD loop tracks targets rather than
+fighting its own weight), and hand position servos stronger than the real SIH's 0.75 N·m.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from trainer.errors import TrainerError
+
+REPRESENTATIONS = ("com", "sdf", "bbox", "sq", "pc32", "pc128", "pc512")
+REWARDS = ("sdf", "com", "none")
+ROBOTS = ("ur5e", "floating")
+
+
+@dataclass(frozen=True)
+class PhysicsConfig:
+    """Simulation timing and contact parameters."""
+
+    control_hz: float = 30.0
+    substeps: int = 10
+    """Physics steps per action; the timestep is 1 / (control_hz * substeps) s."""
+    iterations: int = 20
+    ls_iterations: int = 10
+    table_size: tuple[float, float, float] = (0.4, 0.4, 0.02)
+    """Half-sizes of the table top (m); its top surface is at z = 0."""
+    table_friction: tuple[float, float, float] = (0.8, 0.005, 0.0001)
+    finger_friction: tuple[float, float, float] = (1.0, 0.01, 0.0001)
+    object_friction: tuple[float, float, float] = (1.0, 0.01, 0.0001)
+    condim: int = 4
+    solref: tuple[float, float] = (0.01, 1.0)
+    solimp: tuple[float, float, float, float, float] = (0.9, 0.95, 0.001, 0.5, 2.0)
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    """Arm and hand actuation, and how an action moves them."""
+
+    kind: str = "ur5e"
+    """``ur5e`` (arm + hand, Jacobian-transpose control) or ``floating`` (hand on a 6-DoF mocap)."""
+    base_pos: tuple[float, float, float] = (0.26, 0.63, -0.23)
+    """UR5e base position (m; the table top centre is the origin): beside the table, below its
+    top, where the authors' home configuration puts the hand above the table centre."""
+    arm_kp: float = 1500.0
+    arm_damping: float = 120.0
+    arm_armature: float = 0.2
+    hand_kp: float = 20.0
+    hand_forcerange: float = 5.0
+    """Hand servo torque limit (N·m); the real SIH servos give about 0.75 N·m."""
+    home_hand_height: float = 0.28
+    """Palm keypoint height above the table at reset (m)."""
+    pos_step: float = 0.02
+    """Hand translation per action at |a| = 1 (m)."""
+    rot_step: float = 0.1
+    """Hand rotation per action at |a| = 1 (rad)."""
+    jt_iterations: int = 5
+    """Jacobian-transpose refinements of the arm targets per action (they carry over between
+    actions, so the targets keep converging while the command holds still)."""
+    jt_rotation_scale: float = 0.2
+    """Metres per radian when position and rotation errors share one JT step."""
+    leash: float = 0.05
+    """The commanded hand position stays within this distance of the measured one (m)."""
+    weld_solref: tuple[float, float] = (0.01, 1.0)
+    """Softness of the floating hand's weld to its mocap target."""
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """r = c1 / (|h_bar - dh| + eps_h) + c2 · 1(dh >= h_bar) + c3 / (d + eps_sdf) (the paper)."""
+
+    kind: str = "sdf"
+    """``sdf`` (d: fingertip distances to the surface), ``com`` (to the centre of mass) or
+    ``none`` (c3 = 0)."""
+    h_bar: float = 0.2
+    c1: float = 0.5
+    c2: float = 5000.0
+    c3: float = 1.0
+    eps_h: float = 0.02
+    eps_sdf: float = 0.025
+
+
+@dataclass(frozen=True)
+class InitConfig:
+    """Initial states: objects dropped at random poses and settled, cached as a bank."""
+
+    bank_size: int = 64
+    """Settled poses per object."""
+    drop_height: tuple[float, float] = (0.05, 0.15)
+    """Lowest object point above the table at release (m)."""
+    xy_range: float = 0.08
+    """Drop position is uniform in a square of this half-size around the table centre (m)."""
+    settle_seconds: float = 1.5
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """The lifting task."""
+
+    num_envs: int = 64
+    representation: str = "sq"
+    objects: str = "builtin"
+    """Object set: ``builtin``, ``ycb``, ``all``, or a comma list of names."""
+    max_steps: int = 300
+    fall_height: float = -0.05
+    """The object counts as off the table below this height (m, table top at 0)."""
+    data_dir: Path = Path("data")
+    device: str = "cpu"
+    nthread: int = 0
+    """Simulation threads; 0 = all cores."""
+    sdf_dtype: str = "float32"
+    physics: PhysicsConfig = field(default_factory=PhysicsConfig)
+    robot: RobotConfig = field(default_factory=RobotConfig)
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    init: InitConfig = field(default_factory=InitConfig)
+
+    def __post_init__(self) -> None:
+        if self.representation not in REPRESENTATIONS:
+            raise TrainerError(
+                f"unknown representation {self.representation!r}: "
+                f"choose one of {', '.join(REPRESENTATIONS)}"
+            )
+        if self.reward.kind not in REWARDS:
+            raise TrainerError(
+                f"unknown reward {self.reward.kind!r}: choose one of {', '.join(REWARDS)}"
+            )
+        if self.robot.kind not in ROBOTS:
+            raise TrainerError(
+                f"unknown robot {self.robot.kind!r}: choose one of {', '.join(ROBOTS)}"
+            )
+        if self.num_envs < 1:
+            raise TrainerError(f"num_envs must be at least 1, got {self.num_envs}")
+
+    @property
+    def timestep(self) -> float:
+        return 1.0 / (self.physics.control_hz * self.physics.substeps)
+
+
+def _build(cls: type, values: dict[str, Any], where: str) -> Any:
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    kwargs: dict[str, Any] = {}
+    for key, value in values.items():
+        if key not in fields:
+            raise TrainerError(f"{where}: unknown key {key!r}: valid keys are {', '.join(fields)}")
+        factory = fields[key].default_factory
+        nested = isinstance(factory, type) and dataclasses.is_dataclass(factory)
+        if isinstance(value, dict) and nested:
+            kwargs[key] = _build(factory, value, f"{where} [{key}]")
+        elif isinstance(value, list):
+            kwargs[key] = tuple(value)
+        elif key == "data_dir":
+            kwargs[key] = Path(value)
+        else:
+            kwargs[key] = value
+    return cls(**kwargs)
+
+
+def load_env_config(path: Path | None = None, **overrides: Any) -> EnvConfig:
+    """Defaults, then the TOML file at ``path``, then keyword ``overrides`` (top-level fields or
+    whole sections), e.g. ``load_env_config(representation="sdf", num_envs=16)``."""
+    values: dict[str, Any] = {}
+    if path is not None:
+        try:
+            values = tomllib.loads(Path(path).read_text())
+        except FileNotFoundError:
+            raise TrainerError(f"config file not found: {path}: check the --config path") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise TrainerError(f"config file {path} is not valid TOML: {exc}") from None
+    cfg = _build(EnvConfig, values, str(path or "config"))
+    return dataclasses.replace(cfg, **overrides) if overrides else cfg
+
+
+def config_dict(cfg: Any) -> dict[str, Any]:
+    """A config as a JSON-able dict (paths become strings, tuples lists)."""
+
+    def convert(value: Any) -> Any:
+        if isinstance(value, Path):
+            return str(value)
+        if isinstance(value, tuple):
+            return [convert(v) for v in value]
+        if isinstance(value, dict):
+            return {k: convert(v) for k, v in value.items()}
+        return value
+
+    return convert(dataclasses.asdict(cfg))

@@ -1,0 +1,132 @@
+"""A scripted top-down grasp, batched over environments: proof that the physics and the hand
+can grasp at all, and the demo behind ``trainer demo``.
+
+Phases (in actions at 30 Hz): move above the object with the hand open and the thumb opposed,
+descend, close, lift. The hand turns about the vertical so that it squeezes the object across
+its narrowest horizontal width (from the object's bounding box).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from trainer import constants as C
+from trainer.env import GraspEnv
+from trainer.rotations import matrix_to_axis_angle, quat_to_matrix
+
+
+@dataclass(frozen=True)
+class ScriptedGrasp:
+    """Timing (actions) and geometry (m, palm frame) of the scripted grasp."""
+
+    approach_steps: int = 40
+    descend_steps: int = 35
+    close_steps: int = 25
+    lift_steps: int = 60
+    hover: float = 0.10
+    """Height above the grasp pose at the end of the approach."""
+    grasp_depth: float = 0.17
+    """Object centre along the fingers (palm z) at the grasp."""
+    palm_clearance: float = 0.028
+    """Palm surface to object top (palm y): the palm box ends at y = 0.026."""
+    lift: float = 0.3
+    thumb_open: float = 0.3
+    """Thumb flexion (rad) on the way down: its tip clears the table and the object."""
+    thumb_closed: float = 0.6
+    """Thumb flexion target (rad) when closing: the SIH thumb is short, so it is a post at the
+    object's near side that the fingers press the object against (full flexion would curl it
+    above the object)."""
+
+    @property
+    def total_steps(self) -> int:
+        return self.approach_steps + self.descend_steps + self.close_steps + self.lift_steps
+
+
+def grasp_frame(env: GraspEnv) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Per env: object bbox centre (E, 3) and half-height (E,) in the world, and the palm-down
+    rotation (E, 3, 3) whose finger axis lies across the object's narrowest horizontal width."""
+    qpos = env.backend.qpos
+    obj_pos = qpos[:, env.obj_qpos : env.obj_qpos + 3]
+    rot = quat_to_matrix(qpos[:, env.obj_qpos + 3 : env.obj_qpos + 7])
+    ids = env.env_object
+    center = obj_pos + (rot @ env.objects.bbox_center[ids][..., None])[..., 0]
+    axes = rot @ env.objects.bbox_rotation[ids]  # (E, 3, 3) box axes as columns
+    half = 0.5 * env.objects.bbox_extents[ids]  # (E, 3)
+    half_height = (axes[:, 2, :].abs() * half).sum(-1)
+    angles = torch.linspace(0, math.pi, 13, device=qpos.device)[:-1]
+    dirs = torch.stack([angles.cos(), angles.sin(), torch.zeros_like(angles)], -1)  # (A, 3)
+    width = ((dirs @ axes).abs() * half[:, None, :]).sum(-1)  # (E, A)
+    finger = dirs[width.argmin(-1)]
+    # Of the two signs, take the one nearer the home direction (-y): less wrist turning.
+    home_finger = env.home_rot[:, 2]
+    finger = torch.where(((finger @ home_finger) < 0)[:, None], -finger, finger)
+    down = torch.tensor([0.0, 0.0, -1.0], device=qpos.device).expand_as(finger)
+    palm_x = torch.linalg.cross(down, finger, dim=-1)
+    palm_rot = torch.stack([palm_x, down, finger], dim=-1)
+    return center, half_height, palm_rot
+
+
+def scripted_action(env: GraspEnv, script: ScriptedGrasp, step: int, plan: dict) -> torch.Tensor:
+    """The action (E, 11) for every env at episode step ``step``; ``plan`` holds the grasp
+    frame computed at step 0."""
+    if step == 0:
+        center, half_height, palm_rot = grasp_frame(env)
+        keypoint = torch.tensor([0.0, 0.018, 0.09], device=center.device)
+        grasp_local = torch.stack(
+            [
+                torch.zeros_like(half_height),
+                half_height + script.palm_clearance,
+                torch.full_like(half_height, script.grasp_depth),
+            ],
+            -1,
+        )
+        # Keypoint position that puts the object's centre at grasp_local in the palm frame.
+        goal = center + (palm_rot @ (keypoint - grasp_local)[..., None])[..., 0]
+        plan.update(goal=goal, rot=palm_rot)
+    goal = plan["goal"].clone()
+    closed = torch.ones(5, device=goal.device)
+    closed[1] = 2 * script.thumb_closed / C.SIH_THUMB_FLEX_RANGE[1] - 1
+    hand = -torch.ones(env.num_envs, 5, device=goal.device)
+    hand[:, 0] = 1.0  # thumb opposed throughout
+    hand[:, 1] = 2 * script.thumb_open / C.SIH_THUMB_FLEX_RANGE[1] - 1
+    t = step
+    if t < script.approach_steps:
+        goal[:, 2] += script.hover
+    elif t < script.approach_steps + script.descend_steps:
+        frac = (t - script.approach_steps + 1) / script.descend_steps
+        goal[:, 2] += script.hover * (1.0 - frac)
+    elif t < script.approach_steps + script.descend_steps + script.close_steps:
+        hand[:] = closed
+    else:
+        hand[:] = closed
+        goal[:, 2] += script.lift
+    # Steer the command (not the measured hand): the command then settles on the goal exactly
+    # and the controllers bring the hand there, with no windup from tracking lag.
+    robot = env.cfg.robot
+    move = ((goal - env.target_pos) / robot.pos_step).clamp(-1.0, 1.0)
+    turn = matrix_to_axis_angle(plan["rot"] @ env.target_rot.transpose(1, 2)) / robot.rot_step
+    turn = turn.clamp(-1.0, 1.0)
+    return torch.cat([move, turn, hand], dim=-1)
+
+
+def run_scripted_grasp(
+    env: GraspEnv, script: ScriptedGrasp | None = None, frames: list | None = None
+) -> torch.Tensor:
+    """Reset every env, run the script; return (E,) bool: the object was lifted by h_bar at
+    some step. With ``frames`` (a list), appends env 0's rendered frames to it."""
+    script = script or ScriptedGrasp()
+    from tensordict import TensorDict
+
+    env.reset()
+    plan: dict = {}
+    lifted = torch.zeros(env.num_envs, dtype=torch.bool, device=env.device)
+    for step in range(script.total_steps):
+        action = scripted_action(env, script, step, plan)
+        td = env.step(TensorDict({"action": action}, batch_size=env.batch_size))
+        lifted |= td["next", "success"][:, 0]
+        if frames is not None:
+            frames.append(step)
+    return lifted

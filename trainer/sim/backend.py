@@ -1,0 +1,65 @@
+"""The interface between the task and a physics engine that steps many environments at once.
+
+The task (``trainer/env.py``) only talks to a ``SimBackend``: it writes controls and mocap
+targets, steps, and reads ``qpos``/``qvel`` as torch tensors. A GPU backend (MuJoCo Warp) plugs
+in by implementing the same few methods; nothing in the task changes.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+import torch
+
+
+class SimBackend(ABC):
+    """E environments, each a compiled model (envs may use different models of the same robot
+    and sizes of state). Tensors are float32 on ``device`` unless stated otherwise."""
+
+    num_envs: int
+    device: torch.device
+    nq: int
+    nv: int
+    nu: int
+    nmocap: int
+
+    @abstractmethod
+    def step(
+        self,
+        ctrl: torch.Tensor,
+        mocap_pos: torch.Tensor | None = None,
+        mocap_quat: torch.Tensor | None = None,
+    ) -> None:
+        """Hold ``ctrl`` (E, nu) (and the mocap targets (E, nmocap, 3|4)) for one control period
+        (``substeps`` physics steps) in every environment."""
+
+    @abstractmethod
+    def set_state(
+        self,
+        env_ids: torch.Tensor,
+        qpos: torch.Tensor,
+        qvel: torch.Tensor,
+        ctrl: torch.Tensor,
+        mocap_pos: torch.Tensor | None = None,
+        mocap_quat: torch.Tensor | None = None,
+    ) -> None:
+        """Overwrite the state of the environments ``env_ids`` (R,): qpos (R, nq), qvel (R, nv),
+        ctrl (R, nu); time restarts at 0."""
+
+    @property
+    @abstractmethod
+    def qpos(self) -> torch.Tensor:
+        """(E, nq) current joint positions."""
+
+    @property
+    @abstractmethod
+    def qvel(self) -> torch.Tensor:
+        """(E, nv) current joint velocities."""
+
+    @abstractmethod
+    def unstable(self) -> torch.Tensor:
+        """(E,) bool: environments whose state is not finite or has blown up; the task resets
+        them."""
+
+    def close(self) -> None:  # noqa: B027 (optional hook: most backends hold nothing)
+        """Release threads and engine memory."""

@@ -1,0 +1,205 @@
+"""CPU backend: MuJoCo's C ``rollout`` on a persistent pool of threads.
+
+Environments are sorted by model (one model per object), so each model's environments form a
+contiguous block of the state array. The blocks are cut into chunks; each pool thread runs
+``mujoco.rollout.rollout`` on a chunk with its own ``MjData`` for that model. ``rollout`` releases
+the GIL, so the threads step in parallel, and no Python code runs per environment or per
+physics step.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+
+import mujoco
+import numpy as np
+import torch
+from mujoco import rollout
+
+from trainer.sim.backend import SimBackend
+
+FULL = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
+CONTROL = int(
+    mujoco.mjtState.mjSTATE_CTRL
+    | mujoco.mjtState.mjSTATE_MOCAP_POS
+    | mujoco.mjtState.mjSTATE_MOCAP_QUAT
+)
+QPOS = int(mujoco.mjtState.mjSTATE_QPOS)
+MAX_SPEED = 1e3
+"""A joint speed above this (m/s or rad/s) means the simulation has blown up."""
+
+
+def state_offset(model: mujoco.MjModel, component: int) -> int:
+    """Offset of ``component`` (an mjtState bit inside FULLPHYSICS) in a full physics state."""
+    offset = 0
+    bit = 1
+    while bit < component:
+        if FULL & bit:
+            offset += mujoco.mj_stateSize(model, bit)
+        bit <<= 1
+    return offset
+
+
+class MujocoCPUBackend(SimBackend):
+    """Steps ``len(env_model)`` environments; environment i simulates ``models[env_model[i]]``.
+
+    models: compiled models with identical nq, nv, nu, nmocap (the same robot, different
+    objects); env_model: (E,) int, non-decreasing; substeps: physics steps per ``step``;
+    nthread: pool threads (0 = all cores).
+    """
+
+    def __init__(
+        self,
+        models: Sequence[mujoco.MjModel],
+        env_model: np.ndarray,
+        substeps: int,
+        nthread: int = 0,
+        device: str | torch.device = "cpu",
+    ) -> None:
+        env_model = np.asarray(env_model, dtype=np.int64)
+        if np.any(np.diff(env_model) < 0):
+            raise ValueError("env_model must be sorted so that each model's envs are contiguous")
+        first = models[0]
+        for m in models[1:]:
+            if (m.nq, m.nv, m.nu, m.nmocap, m.na) != (first.nq, first.nv, first.nu, first.nmocap, first.na):  # noqa: E501
+                raise ValueError("all models must have the same state and control sizes")
+        self.models = list(models)
+        self.num_envs = len(env_model)
+        self.device = torch.device(device)
+        self.nq, self.nv, self.nu, self.nmocap = first.nq, first.nv, first.nu, first.nmocap
+        self.substeps = substeps
+        self.timestep = float(first.opt.timestep)
+        self.nthread = nthread or os.cpu_count() or 1
+        self.nstate = mujoco.mj_stateSize(first, FULL)
+        qpos_start = state_offset(first, QPOS)
+        self._qpos = slice(qpos_start, qpos_start + self.nq)
+        self._qvel = slice(self._qpos.stop, self._qpos.stop + self.nv)
+        self.env_model = env_model
+        self._state = np.zeros((self.num_envs, self.nstate))
+        for k, m in enumerate(self.models):
+            data = mujoco.MjData(m)
+            row = np.empty(self.nstate)
+            mujoco.mj_getState(m, data, row, FULL)
+            self._state[env_model == k] = row
+        self._out = np.empty((self.num_envs, substeps, self.nstate))
+        # Controls are held over the control period; rollout wants one row per physics step.
+        self._control = np.zeros((self.num_envs, substeps, mujoco.mj_stateSize(first, CONTROL)))
+        self._chunks = self._make_chunks()
+        self._local = threading.local()
+        self._pool = ThreadPoolExecutor(self.nthread, thread_name_prefix="mujoco")
+        self._cache: dict[str, torch.Tensor] = {}
+
+    def _make_chunks(self) -> list[tuple[int, int, int]]:
+        """(model, start, stop) pieces: about 4 per thread so the threads finish together."""
+        target = max(1, self.num_envs // (4 * self.nthread))
+        chunks = []
+        for k in range(len(self.models)):
+            ids = np.flatnonzero(self.env_model == k)
+            if len(ids) == 0:
+                continue
+            for start in range(ids[0], ids[-1] + 1, target):
+                chunks.append((k, start, min(start + target, ids[-1] + 1)))
+        return chunks
+
+    def _thread_local(self, k: int) -> tuple[rollout.Rollout, mujoco.MjData]:
+        if not hasattr(self._local, "datas"):
+            # nthread=0: each pool thread runs its chunk itself, with the GIL released.
+            self._local.runner = rollout.Rollout(nthread=0)
+            self._local.datas = {}
+        if k not in self._local.datas:
+            self._local.datas[k] = mujoco.MjData(self.models[k])
+        return self._local.runner, self._local.datas[k]
+
+    def _run(self, chunk: tuple[int, int, int]) -> None:
+        k, start, stop = chunk
+        runner, data = self._thread_local(k)
+        runner.rollout(
+            [self.models[k]] * (stop - start),
+            [data],
+            self._state[start:stop],
+            self._control[start:stop],
+            control_spec=CONTROL,
+            nstep=self.substeps,
+            state=self._out[start:stop],
+            skip_checks=True,
+        )
+
+    def step(
+        self,
+        ctrl: torch.Tensor,
+        mocap_pos: torch.Tensor | None = None,
+        mocap_quat: torch.Tensor | None = None,
+    ) -> None:
+        self._write_control(slice(None), ctrl, mocap_pos, mocap_quat)
+        list(self._pool.map(self._run, self._chunks))
+        time_before = self._state[:, 0].copy()
+        self._state[:] = self._out[:, -1]
+        # MuJoCo resets an environment whose accelerations go bad (and rollout stops stepping
+        # it); both show as a clock that did not advance by the control period.
+        self._stalled = np.abs(self._state[:, 0] - time_before - self.substeps * self.timestep) > 0.5 * self.timestep  # noqa: E501
+        self._cache.clear()
+
+    def set_state(
+        self,
+        env_ids: torch.Tensor,
+        qpos: torch.Tensor,
+        qvel: torch.Tensor,
+        ctrl: torch.Tensor,
+        mocap_pos: torch.Tensor | None = None,
+        mocap_quat: torch.Tensor | None = None,
+    ) -> None:
+        ids = env_ids.detach().cpu().numpy()
+        self._state[ids] = 0.0
+        self._state[ids, self._qpos] = qpos.detach().cpu().double().numpy()
+        self._state[ids, self._qvel] = qvel.detach().cpu().double().numpy()
+        self._write_control(ids, ctrl, mocap_pos, mocap_quat)
+        if hasattr(self, "_stalled"):
+            self._stalled[ids] = False
+        self._cache.clear()
+
+    def _write_control(
+        self,
+        rows: slice | np.ndarray,
+        ctrl: torch.Tensor,
+        mocap_pos: torch.Tensor | None,
+        mocap_quat: torch.Tensor | None,
+    ) -> None:
+        parts = [ctrl.detach().reshape(ctrl.shape[0], -1)]
+        if self.nmocap:
+            if mocap_pos is None or mocap_quat is None:
+                raise ValueError("this model has mocap bodies: pass mocap_pos and mocap_quat")
+            parts += [mocap_pos.detach().reshape(ctrl.shape[0], -1)]
+            parts += [mocap_quat.detach().reshape(ctrl.shape[0], -1)]
+        row = torch.cat(parts, dim=1).to("cpu", torch.float64).numpy()
+        self._control[rows] = row[:, None, :]
+
+    def _view(self, key: str, columns: slice) -> torch.Tensor:
+        if key not in self._cache:
+            self._cache[key] = torch.from_numpy(self._state[:, columns].astype(np.float32)).to(self.device)  # noqa: E501
+        return self._cache[key]
+
+    @property
+    def qpos(self) -> torch.Tensor:
+        return self._view("qpos", self._qpos)
+
+    @property
+    def qvel(self) -> torch.Tensor:
+        return self._view("qvel", self._qvel)
+
+    def unstable(self) -> torch.Tensor:
+        finite = np.isfinite(self._state).all(axis=1)
+        fast = (np.abs(self._state[:, self._qvel]) > MAX_SPEED).any(axis=1)
+        stalled = getattr(self, "_stalled", np.zeros(self.num_envs, dtype=bool))
+        return torch.from_numpy(~finite | fast | stalled).to(self.device)
+
+    def raw_step(self) -> None:
+        """One control period with the controls already held and nothing else: the baseline of
+        ``bench/env_throughput.py``."""
+        list(self._pool.map(self._run, self._chunks))
+        self._state[:] = self._out[:, -1]
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True)
