@@ -6,10 +6,12 @@ Usage: python bench/sdf_lookup.py [--envs 16384] [--points 5] [--objects 78] [--
 
 Times ``SDFLookup.query`` for E envs x K fingertips (world points, random object poses and ids),
 on the CPU and, if available, CUDA, in float32 and float16 storage: milliseconds per query, the
-median of --repeats calls after warm-up.  Baselines in the same run, on the same points: a naive
-lookup that gathers the 8 corners with 8 separate 4-D fancy-index reads, and scipy's
-RegularGridInterpolator called once per object (its grids are numpy, so a loop over objects).
-Prints the paper's figure (0.31 ms, RTX A6000), the targets and the grid memory for the objects.
+median (and the 10th and 90th percentiles) of --repeats calls after warm-up.  Baselines in the
+same run, on the same points: a naive lookup that gathers the 8 corners with 8 separate 4-D
+fancy-index reads, and scipy's RegularGridInterpolator called once per object (its grids are
+numpy, so a loop over objects).
+Prints the paper's figure (0.31 ms, RTX A6000), the targets and the memory of the resident grid
+stacks (``SDFLookup.nbytes``).
 
 Without --data-dir the grids are synthetic (distance to spheres of different radii): the timing
 depends on the shapes of the tensors and the spread of the points, not on the values.
@@ -140,8 +142,8 @@ def scipy_lookup(
     return out
 
 
-def median_ms(fn: Callable[[], object], repeats: int, sync: Callable[[], None]) -> float:
-    """Median wall time of fn in milliseconds over repeats calls, after 3 warm-up calls."""
+def times_ms(fn: Callable[[], object], repeats: int, sync: Callable[[], None]) -> list[float]:
+    """Wall times of fn in milliseconds, sorted, over repeats calls after 3 warm-up calls."""
     for _ in range(3):
         fn()
     sync()
@@ -151,7 +153,12 @@ def median_ms(fn: Callable[[], object], repeats: int, sync: Callable[[], None]) 
         fn()
         sync()
         times.append((time.perf_counter() - start) * 1e3)
-    return statistics.median(times)
+    return sorted(times)
+
+
+def median_ms(fn: Callable[[], object], repeats: int, sync: Callable[[], None]) -> float:
+    """Median wall time of fn in milliseconds over repeats calls, after 3 warm-up calls."""
+    return statistics.median(times_ms(fn, repeats, sync))
 
 
 def main() -> None:
@@ -178,10 +185,6 @@ def main() -> None:
         torch.set_num_threads(args.threads)
 
     r, n_obj = args.resolution, args.objects
-    f32_gb, f16_gb = r**3 * 4 * n_obj / 1e9, r**3 * 2 * n_obj / 1e9
-    print(
-        f"grid memory, {n_obj} objects at {r}^3: float32 {f32_gb:.2f} GB, float16 {f16_gb:.2f} GB"
-    )
     print(
         f"paper: {PAPER_MS} ms per query (RTX A6000); targets: <= {TARGET_CPU_MS} ms on the 2-core "
         f"CPU, <= {TARGET_GPU_MS} ms on a GPU; torch threads: {torch.get_num_threads()}"
@@ -198,6 +201,10 @@ def main() -> None:
     lookup16 = SDFLookup(
         lookup32.grids, lookup32.bounds_min, 1.0 / lookup32.inv_voxel, dtype=torch.float16
     )
+    print(
+        f"grid memory resident, {n_obj} objects at {lookup32.resolution}^3: "
+        f"float32 {lookup32.nbytes() / 1e9:.2f} GB, float16 {lookup16.nbytes() / 1e9:.2f} GB"
+    )
     world, pos, quat, ids, local = make_queries(
         args.envs, args.points, n_obj, spread=args.spread, lookup=lookup32
     )
@@ -211,12 +218,15 @@ def main() -> None:
             times = {}
             for label, lookup in (("float32", lookup32), ("float16", lookup16)):
                 lk = lookup.to(device)
-                times[label] = median_ms(lambda lk=lk, q=q: lk.query(*q), args.repeats, sync)
+                times[label] = times_ms(lambda lk=lk, q=q: lk.query(*q), args.repeats, sync)
                 lookup.to("cpu")  # Module.to moves in place; the baselines below run on CPU
             target = TARGET_CPU_MS if device == "cpu" else TARGET_GPU_MS
-            for label, ms in times.items():
+            for label, ts in times.items():
+                # The spread says how much a shared machine disturbed the run.
+                p10, p90 = ts[len(ts) // 10], ts[(len(ts) * 9) // 10]
                 print(
-                    f"{device:<5} SDFLookup.query {label}: {ms:8.3f} ms   (target <= {target} ms)"
+                    f"{device:<5} SDFLookup.query {label}: {statistics.median(ts):8.3f} ms "
+                    f"(p10 {p10:.3f}, p90 {p90:.3f})   (target <= {target} ms)"
                 )
 
         local_cpu = torch.bmm(world - pos[:, None], quat_to_matrix(quat))

@@ -120,6 +120,10 @@ class SDFLookup(torch.nn.Module):
     shift: torch.Tensor
     corner_offsets: torch.Tensor
 
+    # Points per block of the corner gather (see _interpolate): 128 points' 8 corners touch
+    # ~540 cache lines (34 KiB), which stay in L1/L2 while the block is gathered.
+    _BLOCK = 128
+
     def __init__(
         self,
         grids: torch.Tensor | np.ndarray,
@@ -159,9 +163,9 @@ class SDFLookup(torch.nn.Module):
         # u = p / voxel + shift puts voxel i's centre at u = i.
         self.register_buffer("shift", -bounds / voxel[:, None] - 0.5)
         r = self.resolution
-        # Flat-index steps to the 8 cell corners, in (di, dj, dk) C order, the order the lerps
-        # in query_local consume them.
-        steps = [di * r * r + dj * r + dk for di in (0, 1) for dj in (0, 1) for dk in (0, 1)]
+        # Flat-index steps to the 8 cell corners, dk slowest and di fastest, the order in which
+        # the lerps in _interpolate consume them (z first, over contiguous halves).
+        steps = [di * r * r + dj * r + dk for dk in (0, 1) for dj in (0, 1) for di in (0, 1)]
         self.register_buffer("corner_offsets", torch.tensor(steps, dtype=torch.long))
 
     @classmethod
@@ -223,6 +227,7 @@ class SDFLookup(torch.nn.Module):
         object_ids: (E,) long, index into the stacked grids.
         """
         ids = object_ids.long()
+        n_env, k = points_world.shape[:2]
         # Per env, the affine map world offset -> voxel coordinates: u = A (p - pos) + shift with
         # A = R^T / voxel.  Everything below runs on (.., K, E) planes whose contiguous inner
         # dimension is the E envs: in an (E, K, 3) layout the inner sizes are 3 and K, which
@@ -232,9 +237,10 @@ class SDFLookup(torch.nn.Module):
         d = torch.empty(points_world.shape[::-1], dtype=torch.float32, device=points_world.device)
         torch.sub(points_world.permute(2, 1, 0), object_pos.t()[:, None], out=d)
         shift = self.shift.t().index_select(1, ids)[:, None]  # (3, 1, E)
-        u = torch.addcmul(shift, a[:, 0], d[0])
+        buf, u = self._coordinate_buffer(n_env, k, points_world.device)
+        torch.addcmul(shift, a[:, 0], d[0], out=u)
         u.addcmul_(a[:, 1], d[1]).addcmul_(a[:, 2], d[2])
-        return self._interpolate(u, ids)
+        return self._interpolate(buf, ids, k)
 
     forward = query  # calling the module is querying it
 
@@ -262,43 +268,94 @@ class SDFLookup(torch.nn.Module):
     def query_local(self, local: torch.Tensor, object_ids: torch.Tensor) -> torch.Tensor:
         """Signed distance (E, K) float32, metres, at object-frame points local (E, K, 3)."""
         ids = object_ids.long()
-        # Continuous voxel coordinates, voxel i's centre at u = i: u = local / voxel + shift.
-        # (The permuted copy first: elementwise ops give their output their inputs' layout.)
-        u = torch.empty(local.shape[::-1], dtype=torch.float32, device=local.device)
+        buf, u = self._coordinate_buffer(local.shape[0], local.shape[1], local.device)
+        # Continuous voxel coordinates, voxel i's centre at u = i: u = local / voxel + shift,
+        # written straight into the permuted (3, K, E) layout.
         torch.addcmul(
             self.shift.t().index_select(1, ids)[:, None],
             local.permute(2, 1, 0),
             self.inv_voxel.index_select(0, ids),
             out=u,
         )
-        return self._interpolate(u, ids)
+        return self._interpolate(buf, ids, local.shape[1])
 
-    def _interpolate(self, u: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
-        """Trilinear lookup at voxel coordinates u (3, K, E) of objects ids (E,): (E, K)."""
-        r = self.resolution
-        inner = u.clamp(0.0, r - 1.0)
-        base = inner.floor().clamp_(max=r - 2.0)
-        t = inner - base
-        # Outside the cube (more than half a voxel beyond the outer centres): snap to the closest
-        # voxel instead of interpolating.
-        beyond = u.sub_(inner).abs_()
-        outside = torch.maximum(torch.maximum(beyond[0], beyond[1]), beyond[2]) > 0.5
-        # (On CPU the check is free and such points are rare; on a GPU it would be a sync.)
-        if u.device.type != "cpu" or bool(outside.any()):
+    def _coordinate_buffer(
+        self, n_env: int, k: int, device: torch.device
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """A (3, P) float32 buffer, P = E * K rounded up to whole _BLOCKs, and its (3, K, E) view.
+
+        The caller writes the voxel coordinates of its E x K points into the view; the padding
+        past E * K holds zeros (a valid coordinate, so its gathers stay in range) and is dropped
+        at the end.
+        """
+        n = n_env * k
+        padded = -(-n // self._BLOCK) * self._BLOCK
+        buf = torch.empty(3, padded, dtype=torch.float32, device=device)
+        if padded > n:
+            buf[:, n:].zero_()
+        return buf, buf[:, :n].view(3, k, n_env)
+
+    def _interpolate(self, u: torch.Tensor, ids: torch.Tensor, k: int) -> torch.Tensor:
+        """Trilinear lookup at voxel coordinates u (3, P) of objects ids (E,): (E, K) float32.
+
+        u is _coordinate_buffer's buffer, points in (K, E) order then padding; it is overwritten.
+        """
+        r, block = self.resolution, self._BLOCK
+        n_env = ids.shape[0]
+        n = n_env * k
+        n_blocks = u.shape[1] // block
+        if n == 0:  # (torch.aminmax refuses an empty tensor)
+            return torch.zeros(n_env, k, dtype=torch.float32, device=u.device)
+        # Outside the cube (more than half a voxel beyond the outer centres) a point snaps to the
+        # closest voxel instead of interpolating; in the outer half voxel the coordinate is
+        # clamped to the outer centres.  On CPU one min/max pass tells whether any point needs
+        # either (rare: fingertips are near the object) and the clamps and the mask are skipped
+        # otherwise; on a GPU that check would be a host sync, so both are always applied there.
+        outside: torch.Tensor | None = None
+        clamp = True
+        if u.device.type == "cpu":
+            lo, hi = (float(v) for v in torch.aminmax(u))
+            clamp = lo < 0.0 or hi >= r - 1.0
+            if lo < -0.5 or hi > r - 0.5:
+                outside = ((u < -0.5) | (u > r - 0.5)).any(0)
+        else:
+            outside = ((u < -0.5) | (u > r - 0.5)).any(0)
+        # Lower cell corner, clamped so that the cell stays inside the grid; t in [0, 1] is the
+        # fraction across the cell (0 or 1 where u was clamped to the outer voxel centres).
+        # Without clamping base = floor(u) <= r - 2 and t = u - base < 1 already.
+        base = u.floor()
+        t = u.sub_(base) if not clamp else u.sub_(base.clamp_(0.0, r - 2.0)).clamp_(0.0, 1.0)
+        if outside is not None:
             t = torch.where(outside, t.round(), t)
         # Flat index in the stack; int32 where it fits (half the index traffic of int64).
         index_dtype = torch.int32 if self.grids.numel() < 2**31 else torch.long
-        b = base.to(index_dtype)
-        flat = (ids.to(index_dtype) * r**3)[None, :] + b[2]
-        flat.add_(b[1], alpha=r).add_(b[0], alpha=r * r)
-        idx = flat[None] + self.corner_offsets.to(index_dtype)[:, None, None]
-        # index_select on the flat stack: on CPU ~2x faster than advanced indexing or take.
-        corners = self.grids.view(-1).index_select(0, idx.view(-1)).view(idx.shape).float()
-        # Trilinear as three lerps (z, then y, then x): fewer passes than 8 explicit weights.
-        c = corners.unflatten(0, (4, 2))
-        c = torch.lerp(c[:, 0], c[:, 1], t[2]).unflatten(0, (2, 2))
-        c = torch.lerp(c[:, 0], c[:, 1], t[1])
-        return torch.lerp(c[0], c[1], t[0]).t().contiguous()
+        if r**3 <= 2**24:
+            # The index within one grid is an integer below 2**24, exact in float32: three
+            # passes over one row instead of converting all three rows first.
+            flat = torch.add(base[2], base[1], alpha=r).add_(base[0], alpha=r * r)
+            flat = flat.to(index_dtype)
+        else:
+            b = base.to(index_dtype)
+            flat = torch.add(b[2], b[1], alpha=r).add_(b[0], alpha=r * r)
+        del base
+        flat[:n].view(k, n_env).add_((ids.to(index_dtype) * r**3)[None, :])
+        # Corner indices block by block, (n_blocks, 8, block): the gather then reads the 8
+        # corners of one block's 128 points back to back, while their ~540 cache lines are still
+        # in L1/L2.  Corner-major order (8, P) instead walks all E * K points 8 times and fetches
+        # each line again from L3 or memory (~1.3x the gather's time at 16,384 x 5 on the 2-core
+        # EPYC).  The same order works unchanged on a GPU.
+        idx = flat.view(n_blocks, 1, block) + self.corner_offsets.to(index_dtype)[:, None]
+        corners = self.grids.view(-1).index_select(0, idx.view(-1)).float()
+        del idx
+        # Trilinear as three lerps (z, then y, then x) over contiguous halves of each block, the
+        # first two written over their first input: every fresh intermediate would compete with
+        # the grid's cache lines for the L3.
+        t = t.view(3, n_blocks, 1, block)
+        c = corners.view(n_blocks, 2, 4, block)
+        c = torch.lerp(c[:, 0], c[:, 1], t[2], out=c[:, 0])  # (n_blocks, 4, block): dj, di
+        c = torch.lerp(c[:, :2], c[:, 2:], t[1], out=c[:, :2])  # (n_blocks, 2, block): di
+        c = torch.lerp(c[:, 0], c[:, 1], t[0, :, 0])  # (n_blocks, block), contiguous
+        return c.view(-1)[:n].view(k, n_env).t().contiguous()
 
 
 def naive_query(

@@ -267,3 +267,46 @@ def test_empty_grids_used_in_place(box: SDFGrid) -> None:
     # Another dtype is copied (into fresh huge-page memory on Linux), not aliased.
     half = SDFLookup(grids, box.bounds_min[None], [box.voxel_size], dtype=torch.float16)
     assert half.grids.data_ptr() != grids.data_ptr() and half.grids.dtype == torch.float16
+
+
+@pytest.mark.parametrize("n_env, k", [(1, 1), (3, 5), (129, 1), (300, 5)])
+def test_block_padding_and_outer_centres_match_naive(sphere: SDFGrid, n_env: int, k: int) -> None:
+    # Batches of E * K points that are not whole gather blocks (the padding is dropped), with
+    # exact outer voxel centres (the upper one needs the clamped cell) among interior points.
+    lookup = _lookup(sphere)
+    r = sphere.grid.shape[0]
+    c = voxel_centers(r, float(sphere.bounds_max[0]))
+    rng = np.random.default_rng(n_env * 10 + k)
+    local = rng.uniform(c[0], c[-1], (n_env, k, 3))
+    local.reshape(-1, 3)[0] = [c[-1], c[0], c[-1]]
+    got = lookup.query_local(torch.tensor(local, dtype=torch.float32), torch.zeros(n_env))
+    assert got.shape == (n_env, k) and got.is_contiguous()
+    expect = naive_query(
+        sphere.grid[None], sphere.bounds_min[None], [sphere.voxel_size], local, np.zeros(n_env)
+    )
+    np.testing.assert_allclose(got.numpy(), expect, atol=2e-6)
+    assert abs(float(got[0, 0]) - float(sphere.grid[r - 1, 0, r - 1])) <= 2e-6
+
+
+def test_interior_fast_path_matches_clamped_path(sphere: SDFGrid) -> None:
+    # A batch strictly inside the outer centres skips the clamps on CPU; one far point in the
+    # same batch forces the clamped, snapped path for all: interior values must be identical.
+    lookup = _lookup(sphere)
+    rng = np.random.default_rng(4)
+    inner = torch.tensor(rng.uniform(-0.1, 0.1, (200, 5, 3)), dtype=torch.float32)
+    mixed = torch.cat([inner, torch.full((1, 5, 3), 3.0)])
+    ids = torch.zeros(201, dtype=torch.long)
+    fast = lookup.query_local(inner, ids[:200])
+    clamped = lookup.query_local(mixed, ids)
+    assert torch.equal(fast, clamped[:200])
+    # The far env gets the corner voxel's value (the closest-voxel rule).
+    r = sphere.grid.shape[0]
+    np.testing.assert_allclose(clamped[200].numpy(), sphere.grid[r - 1, r - 1, r - 1], atol=1e-7)
+
+
+def test_empty_batch(sphere: SDFGrid) -> None:
+    lookup = _lookup(sphere)
+    got = lookup.query(
+        torch.zeros(0, 5, 3), torch.zeros(0, 3), torch.zeros(0, 4), torch.zeros(0, dtype=torch.long)
+    )
+    assert got.shape == (0, 5) and got.dtype == torch.float32
