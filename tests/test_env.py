@@ -16,7 +16,11 @@ from geomprep.config import Config
 from geomprep.sdf_lookup import naive_query
 from trainer.config import REPRESENTATIONS, load_env_config
 from trainer.env import GraspEnv
-from trainer.representations import object_representation, representation_shape
+from trainer.representations import (
+    _euler_xyz_to_matrix,
+    object_representation,
+    representation_shape,
+)
 from trainer.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix
 
 
@@ -140,8 +144,6 @@ def test_representations_move_with_the_object(env: GraspEnv, name: str) -> None:
     elif name == "sq":
         torch.testing.assert_close(b[:, :5], a[:, :5])
         torch.testing.assert_close(b[:, 8:], apply(a[:, 8:]), atol=1e-5, rtol=0)
-        from trainer.representations import _euler_xyz_to_matrix
-
         torch.testing.assert_close(
             _euler_xyz_to_matrix(b[:, 5:8]), move @ _euler_xyz_to_matrix(a[:, 5:8]),
             atol=1e-5, rtol=0,

@@ -21,7 +21,7 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from trainer import constants as C
-from trainer.assets.scene import build_scene, home_palm_pose, ur5e_home_joints
+from trainer.assets.scene import build_scene, home_hand_pose, ur5e_home_joints
 from trainer.config import EnvConfig
 from trainer.init_states import load_or_build_bank
 from trainer.kinematics import SiteKinematics, jacobian_transpose_step
@@ -111,8 +111,7 @@ class GraspEnv(EnvBase):
         hand[0] = self.hand_closed[0]  # thumb rotation: opposed
         ctrl[self.hand_act] = hand
         qpos[self.hand_qpos[0]] = hand[0]
-        palm_pos, palm_rot = home_palm_pose(self.cfg)
-        keypoint = palm_pos + palm_rot @ np.array(C.SIH_PALM_KEYPOINT)
+        keypoint, palm_rot = home_hand_pose(self.cfg)
         self.home_keypoint = torch.as_tensor(keypoint, dtype=torch.float32, device=self.device)
         self.home_rot = torch.as_tensor(palm_rot, dtype=torch.float32, device=self.device)
         if self.floating:

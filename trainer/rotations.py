@@ -5,18 +5,17 @@ from __future__ import annotations
 
 import torch
 
+# One quaternion convention across the project: the SDF lookup's (normalises, w first).
+from geomprep.sdf_lookup import quat_to_matrix
 
-def quat_to_matrix(quat: torch.Tensor) -> torch.Tensor:
-    """(..., 4) unit quaternions -> (..., 3, 3) rotation matrices."""
-    w, x, y, z = quat.unbind(-1)
-    return torch.stack(
-        [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-        ],
-        dim=-1,
-    ).reshape(*quat.shape[:-1], 3, 3)
+__all__ = [
+    "axis_angle_to_matrix",
+    "matrix_to_axis_angle",
+    "matrix_to_euler_xyz",
+    "matrix_to_quat",
+    "quat_to_matrix",
+    "rotation_6d",
+]
 
 
 def matrix_to_quat(rot: torch.Tensor) -> torch.Tensor:

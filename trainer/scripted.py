@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass
 
 import torch
+from tensordict import TensorDict
 
 from trainer import constants as C
 from trainer.env import GraspEnv
@@ -74,7 +75,7 @@ def scripted_action(env: GraspEnv, script: ScriptedGrasp, step: int, plan: dict)
     frame computed at step 0."""
     if step == 0:
         center, half_height, palm_rot = grasp_frame(env)
-        keypoint = torch.tensor([0.0, 0.018, 0.09], device=center.device)
+        keypoint = torch.tensor(C.SIH_PALM_KEYPOINT, device=center.device)
         grasp_local = torch.stack(
             [
                 torch.zeros_like(half_height),
@@ -112,14 +113,10 @@ def scripted_action(env: GraspEnv, script: ScriptedGrasp, step: int, plan: dict)
     return torch.cat([move, turn, hand], dim=-1)
 
 
-def run_scripted_grasp(
-    env: GraspEnv, script: ScriptedGrasp | None = None, frames: list | None = None
-) -> torch.Tensor:
+def run_scripted_grasp(env: GraspEnv, script: ScriptedGrasp | None = None) -> torch.Tensor:
     """Reset every env, run the script; return (E,) bool: the object was lifted by h_bar at
-    some step. With ``frames`` (a list), appends env 0's rendered frames to it."""
+    some step."""
     script = script or ScriptedGrasp()
-    from tensordict import TensorDict
-
     env.reset()
     plan: dict = {}
     lifted = torch.zeros(env.num_envs, dtype=torch.bool, device=env.device)
@@ -127,6 +124,4 @@ def run_scripted_grasp(
         action = scripted_action(env, script, step, plan)
         td = env.step(TensorDict({"action": action}, batch_size=env.batch_size))
         lifted |= td["next", "success"][:, 0]
-        if frames is not None:
-            frames.append(step)
     return lifted

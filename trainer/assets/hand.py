@@ -61,6 +61,23 @@ def _hinge(
     joint.armature = C.SIH_JOINT_ARMATURE
 
 
+def _link(
+    parent: mujoco.MjsBody,
+    name: str,
+    pos: tuple[float, ...],
+    joint: str,
+    axis: tuple[float, float, float],
+    limits: tuple[float, float],
+) -> mujoco.MjsBody:
+    """A gravity-compensated child body turning on one hinge at its origin."""
+    body = parent.add_body()
+    body.name = name
+    body.pos = pos
+    body.gravcomp = 1.0
+    _hinge(body, joint, axis, limits)
+    return body
+
+
 def _site(body: mujoco.MjsBody, name: str, pos: tuple[float, ...]) -> None:
     site = body.add_site()
     site.name = name
@@ -97,23 +114,20 @@ def add_sih_hand(
     _hand_contact(box, physics)
     _site(palm, "palm", C.SIH_PALM_KEYPOINT)
 
-    th_base = palm.add_body()
-    th_base.name = "th_proximal"
-    th_base.pos = C.SIH_THUMB_BASE_POS
-    th_base.gravcomp = 1.0
-    _hinge(th_base, "th_rot", (0.0, 0.0, 1.0), C.SIH_THUMB_ROT_RANGE)
+    th_base = _link(
+        palm, "th_proximal", C.SIH_THUMB_BASE_POS, "th_rot", (0.0, 0.0, 1.0),
+        C.SIH_THUMB_ROT_RANGE,
+    )
     _capsule(th_base, (0.0, 0.0, 0.0), C.SIH_THUMB_INTER_POS, THUMB_RADIUS, 0.02, physics)
-    th_inter = th_base.add_body()
-    th_inter.name = "th_inter"
-    th_inter.pos = C.SIH_THUMB_INTER_POS
-    th_inter.gravcomp = 1.0
-    _hinge(th_inter, "th_flex", (0.0, 1.0, 0.0), C.SIH_THUMB_FLEX_RANGE)
+    th_inter = _link(
+        th_base, "th_inter", C.SIH_THUMB_INTER_POS, "th_flex", (0.0, 1.0, 0.0),
+        C.SIH_THUMB_FLEX_RANGE,
+    )
     _capsule(th_inter, (0.0, 0.0, 0.0), C.SIH_THUMB_DISTAL_POS, THUMB_RADIUS, 0.02, physics)
-    th_distal = th_inter.add_body()
-    th_distal.name = "th_distal"
-    th_distal.pos = C.SIH_THUMB_DISTAL_POS
-    th_distal.gravcomp = 1.0
-    _hinge(th_distal, "th_distal", (0.0, 1.0, 0.0), C.SIH_THUMB_FLEX_RANGE)
+    th_distal = _link(
+        th_inter, "th_distal", C.SIH_THUMB_DISTAL_POS, "th_distal", (0.0, 1.0, 0.0),
+        C.SIH_THUMB_FLEX_RANGE,
+    )
     _capsule(th_distal, (0.0, 0.0, 0.003), (-0.02, 0.0, 0.006), THUMB_RADIUS, 0.015, physics)
     _site(th_distal, "tip_th", C.SIH_THUMB_TIP_POS)
     # The published list, plus palm <-> th_inter: our palm box is coarser than the palm mesh
@@ -121,11 +135,8 @@ def add_sih_hand(
     excluded = [("palm", "th_proximal"), ("th_proximal", "th_distal"), ("palm", "th_inter")]
 
     for finger, (x, z_mcp, proximal_len, distal_len) in C.SIH_FINGERS.items():
-        proximal = palm.add_body()
-        proximal.name = f"{finger}_proximal"
-        proximal.pos = (x, 0.0, z_mcp)
-        proximal.gravcomp = 1.0
-        _hinge(proximal, f"{finger}_proximal", (1.0, 0.0, 0.0), C.SIH_FINGER_RANGE)
+        name = f"{finger}_proximal"
+        proximal = _link(palm, name, (x, 0.0, z_mcp), name, (1.0, 0.0, 0.0), C.SIH_FINGER_RANGE)
         _capsule(
             proximal,
             (0.0, FINGER_AXIS_Y, 0.0),
@@ -134,11 +145,10 @@ def add_sih_hand(
             0.02,
             physics,
         )
-        distal = proximal.add_body()
-        distal.name = f"{finger}_distal"
-        distal.pos = (0.0, 0.0, proximal_len)
-        distal.gravcomp = 1.0
-        _hinge(distal, f"{finger}_distal", (1.0, 0.0, 0.0), C.SIH_FINGER_RANGE)
+        name = f"{finger}_distal"
+        distal = _link(
+            proximal, name, (0.0, 0.0, proximal_len), name, (1.0, 0.0, 0.0), C.SIH_FINGER_RANGE
+        )
         _capsule(
             distal,
             (0.0, FINGER_AXIS_Y, 0.0),

@@ -106,18 +106,17 @@ def add_object(spec: mujoco.MjSpec, xml_path: Path, physics: PhysicsConfig) -> s
     return body.name
 
 
-def home_palm_pose(cfg: EnvConfig) -> tuple[np.ndarray, np.ndarray]:
-    """The reset pose of the palm keypoint: ``home_hand_height`` above the table centre, palm
-    down. Returns (pos (3,) m, rotation (3, 3)) of the *palm frame* in the world."""
-    keypoint = np.array([0.0, 0.0, cfg.robot.home_hand_height])
-    palm_pos = keypoint - PALM_DOWN @ np.array(C.SIH_PALM_KEYPOINT)
-    return palm_pos, PALM_DOWN
+def home_hand_pose(cfg: EnvConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The reset pose of the hand: the palm keypoint ``home_hand_height`` above the table
+    centre, palm down. Returns (keypoint position (3,) m, palm rotation (3, 3)) in the world."""
+    return np.array([0.0, 0.0, cfg.robot.home_hand_height]), PALM_DOWN
 
 
 def ur5e_home_joints(cfg: EnvConfig, iterations: int = 300) -> np.ndarray:
-    """Arm joints that put the palm at ``home_palm_pose`` (damped least squares on the DH model,
+    """Arm joints that put the hand at ``home_hand_pose`` (damped least squares on the DH model,
     started from the authors' home configuration so the elbow stays up)."""
-    target_pos, target_rot = home_palm_pose(cfg)
+    keypoint, target_rot = home_hand_pose(cfg)
+    target_pos = keypoint - target_rot @ np.array(C.SIH_PALM_KEYPOINT)
     offset_pos, offset_quat = flange_to_palm()
     offset_rot = _quat_to_matrix(offset_quat)
     base = np.array(cfg.robot.base_pos)
@@ -162,7 +161,7 @@ def build_scene(cfg: EnvConfig, object_xml: Path | None) -> mujoco.MjSpec:
     spec.modelname = "lift"
     _options(spec, cfg)
     _add_table(spec, cfg.physics)
-    palm_pos, palm_rot = home_palm_pose(cfg)
+    keypoint, palm_rot = home_hand_pose(cfg)
     if cfg.robot.kind == "ur5e":
         last_link = add_ur5e(spec, cfg.physics, cfg.robot)
         offset_pos, offset_quat = flange_to_palm()
@@ -173,7 +172,6 @@ def build_scene(cfg: EnvConfig, object_xml: Path | None) -> mujoco.MjSpec:
                 for geom in link.geoms:
                     geom.condim = cfg.physics.condim
     else:
-        keypoint = palm_pos + palm_rot @ np.array(C.SIH_PALM_KEYPOINT)
         quat = _matrix_to_quat(palm_rot)
         target = spec.worldbody.add_body()
         target.name = "hand_target"

@@ -91,6 +91,7 @@ class MujocoCPUBackend(SimBackend):
         self._local = threading.local()
         self._pool = ThreadPoolExecutor(self.nthread, thread_name_prefix="mujoco")
         self._cache: dict[str, torch.Tensor] = {}
+        self._stalled = np.zeros(self.num_envs, dtype=bool)
 
     def _make_chunks(self) -> list[tuple[int, int, int]]:
         """(model, start, stop) pieces: about 4 per thread so the threads finish together."""
@@ -139,7 +140,8 @@ class MujocoCPUBackend(SimBackend):
         self._state[:] = self._out[:, -1]
         # MuJoCo resets an environment whose accelerations go bad (and rollout stops stepping
         # it); both show as a clock that did not advance by the control period.
-        self._stalled = np.abs(self._state[:, 0] - time_before - self.substeps * self.timestep) > 0.5 * self.timestep  # noqa: E501
+        advanced = self._state[:, 0] - time_before
+        self._stalled = np.abs(advanced - self.substeps * self.timestep) > 0.5 * self.timestep
         self._cache.clear()
 
     def set_state(
@@ -156,8 +158,7 @@ class MujocoCPUBackend(SimBackend):
         self._state[ids, self._qpos] = qpos.detach().cpu().double().numpy()
         self._state[ids, self._qvel] = qvel.detach().cpu().double().numpy()
         self._write_control(ids, ctrl, mocap_pos, mocap_quat)
-        if hasattr(self, "_stalled"):
-            self._stalled[ids] = False
+        self._stalled[ids] = False
         self._cache.clear()
 
     def _write_control(
@@ -192,8 +193,7 @@ class MujocoCPUBackend(SimBackend):
     def unstable(self) -> torch.Tensor:
         finite = np.isfinite(self._state).all(axis=1)
         fast = (np.abs(self._state[:, self._qvel]) > MAX_SPEED).any(axis=1)
-        stalled = getattr(self, "_stalled", np.zeros(self.num_envs, dtype=bool))
-        return torch.from_numpy(~finite | fast | stalled).to(self.device)
+        return torch.from_numpy(~finite | fast | self._stalled).to(self.device)
 
     def raw_step(self) -> None:
         """One control period with the controls already held and nothing else: the baseline of
