@@ -14,7 +14,6 @@ import dataclasses
 import time
 
 import torch
-from tensordict import TensorDict
 
 from trainer.config import REPRESENTATIONS, load_env_config
 from trainer.env import GraspEnv
@@ -22,14 +21,16 @@ from trainer.env import GraspEnv
 
 def measure(env: GraspEnv, steps: int) -> tuple[float, float]:
     """(env steps/s, raw steps/s), each env step = one action of every env."""
-    env.reset()
+    td = env.reset()
     gen = torch.Generator().manual_seed(0)
-    actions = [torch.rand(env.num_envs, 11, generator=gen) * 2 - 1 for _ in range(steps)]
-    env.step(TensorDict({"action": actions[0]}, batch_size=env.batch_size))
+    actions = [torch.rand(env.num_envs, 11, generator=gen) * 2 - 1 for _ in range(steps + 1)]
+    td["action"] = actions[0]
+    _, td = env.step_and_maybe_reset(td)  # warm-up
     start = time.perf_counter()
-    for action in actions:
-        td = env.step(TensorDict({"action": action}, batch_size=env.batch_size))
-        env.reset(TensorDict({"_reset": td["next", "done"]}, batch_size=env.batch_size))
+    for action in actions[1:]:
+        # What a collector does: step, then reset the envs that are done.
+        td["action"] = action
+        _, td = env.step_and_maybe_reset(td)
     env_rate = env.num_envs * steps / (time.perf_counter() - start)
     start = time.perf_counter()
     for _ in range(steps):

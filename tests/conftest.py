@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
-import pytest
-import trimesh
+# MuJoCo chooses its OpenGL backend at first import; the rendering tests need EGL (no display).
+os.environ.setdefault("MUJOCO_GL", "egl")
 
-from geomprep import fetch, mesh, pipeline
-from geomprep.config import Config
+from pathlib import Path  # noqa: E402
+
+import pytest  # noqa: E402
+import trimesh  # noqa: E402
+
+from geomprep import fetch, mesh, pipeline  # noqa: E402
+from geomprep.config import Config  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

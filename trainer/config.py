@@ -38,6 +38,10 @@ class PhysicsConfig:
     """Physics steps per action; the timestep is 1 / (control_hz * substeps) s."""
     iterations: int = 20
     ls_iterations: int = 10
+    impratio: float = 1.0
+    """Frictional-to-normal constraint impedance ratio; above 1 makes friction stiffer (less
+    creep of a held object), as MuJoCo recommends with elliptic cones."""
+    noslip_iterations: int = 0
     table_size: tuple[float, float, float] = (0.4, 0.4, 0.02)
     """Half-sizes of the table top (m); its top surface is at z = 0."""
     table_friction: tuple[float, float, float] = (0.8, 0.005, 0.0001)
@@ -69,7 +73,7 @@ class RobotConfig:
     """Hand translation per action at |a| = 1 (m)."""
     rot_step: float = 0.1
     """Hand rotation per action at |a| = 1 (rad)."""
-    jt_iterations: int = 5
+    jt_iterations: int = 2
     """Jacobian-transpose refinements of the arm targets per action (they carry over between
     actions, so the targets keep converging while the command holds still)."""
     jt_rotation_scale: float = 0.2

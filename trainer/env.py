@@ -80,6 +80,7 @@ class GraspEnv(EnvBase):
         self.target_pos = torch.zeros(E, 3, device=self.device)
         self.target_rot = torch.eye(3, device=self.device).repeat(E, 1, 1)
         self.ctrl = self.home_ctrl.repeat(E, 1)
+        self.palm_pos = self.home_keypoint.repeat(E, 1)
         self._make_specs()
 
     # --- setup ------------------------------------------------------------------------------
@@ -193,6 +194,10 @@ class GraspEnv(EnvBase):
             return None, None
         return pos.reshape(n, 1, 3), matrix_to_quat(rot).reshape(n, 1, 4)
 
+    def mocap_targets(self) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+        """The floating hand's current mocap target: (E, 1, 3) and (E, 1, 4), or Nones."""
+        return self._mocap(self.num_envs, self.target_pos, self.target_rot)
+
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get("action").clamp(-1.0, 1.0)
         mocap = self._apply_action(action)
@@ -204,8 +209,7 @@ class GraspEnv(EnvBase):
     def _apply_action(self, action: torch.Tensor) -> tuple[torch.Tensor | None, torch.Tensor | None]:  # noqa: E501
         """Move the commanded hand pose by the action and turn it into actuator targets."""
         robot = self.cfg.robot
-        poses = self.palm_kinematics.forward(self.backend.qpos)
-        palm_pos = poses.site_pos[:, 0]
+        palm_pos = self.palm_pos  # measured at the last observation, the current state
         # The command accumulates, so small tracking errors do not drift; a leash keeps it near
         # the measured hand when the hand is blocked (by the table or the object).
         lag = (self.target_pos - palm_pos).clamp(-robot.leash, robot.leash)
@@ -234,6 +238,7 @@ class GraspEnv(EnvBase):
         obj_quat = qpos[:, self.obj_qpos + 3 : self.obj_qpos + 7]
         tips = poses.site_pos[:, 1:]
         palm_pos, palm_rot = poses.site_pos[:, 0], poses.site_rot[:, 0]
+        self.palm_pos = palm_pos
         obs = self._get_obs(qpos, palm_pos, palm_rot, obj_pos, obj_quat, tips)
         lift = obj_pos[:, 2] - self.start_height
         terms = self._get_reward(lift, tips, obj_pos, obj_quat, obs)

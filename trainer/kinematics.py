@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 import torch
 
-from trainer.rotations import axis_angle_to_matrix, matrix_to_axis_angle, quat_to_matrix
+from trainer.rotations import matrix_to_axis_angle, quat_to_matrix
 
 
 @dataclass
@@ -79,6 +79,19 @@ class SiteKinematics:
         self._body_pos = as_tensor(model.body_pos[chain])
         self._body_rot = quat_to_matrix(as_tensor(model.body_quat[chain]))
         self._axis = as_tensor(np.stack(axes))
+        # A hinge body's rotation is body_rot · R(q) = B + sin q · B K + (1 - cos q) · B K²
+        # (Rodrigues, K the skew matrix of the unit axis): three constant matrices per hinge,
+        # so all hinge rotations of a batch come from one vectorized expression.
+        self._hinges = [i for i, (kind, _, _) in enumerate(self._joint) if kind == "hinge"]
+        self._hinge_qpos = torch.tensor(
+            [self._joint[i][1] for i in self._hinges], dtype=torch.long, device=device
+        )
+        skew = torch.zeros(len(self._hinges), 3, 3, device=device)
+        for h, i in enumerate(self._hinges):
+            x, y, z = (self._axis[i] / self._axis[i].norm()).tolist()
+            skew[h] = torch.tensor([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+        base = self._body_rot[self._hinges]
+        self._hinge_terms = torch.stack([base, base @ skew, base @ skew @ skew], dim=1)
         self._site_body = [index[int(model.site_bodyid[s])] for s in site_ids]
         self._site_pos = as_tensor(model.site_pos[site_ids])
         self._site_rot = quat_to_matrix(as_tensor(model.site_quat[site_ids]))
@@ -94,20 +107,24 @@ class SiteKinematics:
         positions: list[torch.Tensor] = []
         rotations: list[torch.Tensor] = []
         batch = qpos.shape[0]
+        angles = qpos[:, self._hinge_qpos]
+        coef = torch.stack([torch.ones_like(angles), angles.sin(), 1.0 - angles.cos()], dim=-1)
+        # (E, H, 3, 3): each hinge body's rotation relative to its parent.
+        local = (coef[..., None, None] * self._hinge_terms).sum(2)
+        hinge_rot = dict(zip(self._hinges, local.unbind(1), strict=True))
         for i, (kind, qadr, _) in enumerate(self._joint):
             if kind == "free":
                 pos = qpos[:, qadr : qadr + 3]
                 rot = quat_to_matrix(qpos[:, qadr + 3 : qadr + 7])
             else:
+                relative = hinge_rot[i] if kind == "hinge" else self._body_rot[i]
                 parent = self._parent[i]
                 if parent < 0:
                     pos = self._body_pos[i].expand(batch, 3)
-                    rot = self._body_rot[i].expand(batch, 3, 3)
+                    rot = relative.expand(batch, 3, 3)
                 else:
                     pos = positions[parent] + (rotations[parent] @ self._body_pos[i])
-                    rot = rotations[parent] @ self._body_rot[i]
-                if kind == "hinge":
-                    rot = rot @ axis_angle_to_matrix(qpos[:, qadr, None] * self._axis[i])
+                    rot = rotations[parent] @ relative
             positions.append(pos)
             rotations.append(rot)
         site_pos = torch.stack(

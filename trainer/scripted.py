@@ -9,6 +9,7 @@ its narrowest horizontal width (from the object's bounding box).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -29,14 +30,22 @@ class ScriptedGrasp:
     lift_steps: int = 60
     hover: float = 0.10
     """Height above the grasp pose at the end of the approach."""
-    grasp_depth: float = 0.17
-    """Object centre along the fingers (palm z) at the grasp."""
-    palm_clearance: float = 0.028
-    """Palm surface to object top (palm y): the palm box ends at y = 0.026."""
+    grasp_depth: float = 0.16
+    """Object centre along the fingers (palm z) at the grasp: close enough to the palm that
+    the fingers reach past the object's far side."""
+    lateral: float = -0.03
+    """Object centre across the palm (palm x), toward the thumb's side (the thumb sits at
+    x = -0.03): centred on the fingers, a round object rolls past the thumb as they close."""
+    palm_clearance: float = 0.016
+    """Object top to the palm (palm y) is ``palm_clearance - 0.026``: the palm box ends at
+    y = 0.026, so the palm presses lightly on the object and becomes a third support."""
     lift: float = 0.3
-    thumb_open: float = 0.3
-    """Thumb flexion (rad) on the way down: its tip clears the table and the object."""
-    thumb_closed: float = 0.6
+    lift_rate: float = 1.0
+    """Fraction of the full hand speed (``pos_step`` per action) used while lifting."""
+    thumb_open: float = 0.15
+    """Thumb flexion (rad) on the way down: the thumb hangs almost straight down, beside the
+    object, reaching below the equator of a 7 cm apple."""
+    thumb_closed: float = 0.4
     """Thumb flexion target (rad) when closing: the SIH thumb is short, so it is a post at the
     object's near side that the fingers press the object against (full flexion would curl it
     above the object)."""
@@ -78,7 +87,7 @@ def scripted_action(env: GraspEnv, script: ScriptedGrasp, step: int, plan: dict)
         keypoint = torch.tensor(C.SIH_PALM_KEYPOINT, device=center.device)
         grasp_local = torch.stack(
             [
-                torch.zeros_like(half_height),
+                torch.full_like(half_height, script.lateral),
                 half_height + script.palm_clearance,
                 torch.full_like(half_height, script.grasp_depth),
             ],
@@ -107,15 +116,21 @@ def scripted_action(env: GraspEnv, script: ScriptedGrasp, step: int, plan: dict)
     # Steer the command (not the measured hand): the command then settles on the goal exactly
     # and the controllers bring the hand there, with no windup from tracking lag.
     robot = env.cfg.robot
-    move = ((goal - env.target_pos) / robot.pos_step).clamp(-1.0, 1.0)
+    lifting = t >= script.approach_steps + script.descend_steps + script.close_steps
+    rate = script.lift_rate if lifting else 1.0
+    move = ((goal - env.target_pos) / robot.pos_step).clamp(-rate, rate)
     turn = matrix_to_axis_angle(plan["rot"] @ env.target_rot.transpose(1, 2)) / robot.rot_step
     turn = turn.clamp(-1.0, 1.0)
     return torch.cat([move, turn, hand], dim=-1)
 
 
-def run_scripted_grasp(env: GraspEnv, script: ScriptedGrasp | None = None) -> torch.Tensor:
+def run_scripted_grasp(
+    env: GraspEnv,
+    script: ScriptedGrasp | None = None,
+    on_step: Callable[[int], None] | None = None,
+) -> torch.Tensor:
     """Reset every env, run the script; return (E,) bool: the object was lifted by h_bar at
-    some step."""
+    some step. ``on_step(step)`` is called after every action (e.g. to render a frame)."""
     script = script or ScriptedGrasp()
     env.reset()
     plan: dict = {}
@@ -124,4 +139,6 @@ def run_scripted_grasp(env: GraspEnv, script: ScriptedGrasp | None = None) -> to
         action = scripted_action(env, script, step, plan)
         td = env.step(TensorDict({"action": action}, batch_size=env.batch_size))
         lifted |= td["next", "success"][:, 0]
+        if on_step is not None:
+            on_step(step)
     return lifted

@@ -46,6 +46,8 @@ def _options(spec: mujoco.MjSpec, cfg: EnvConfig) -> None:
     spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
     spec.option.iterations = cfg.physics.iterations
     spec.option.ls_iterations = cfg.physics.ls_iterations
+    spec.option.impratio = cfg.physics.impratio
+    spec.option.noslip_iterations = cfg.physics.noslip_iterations
     spec.visual.global_.offwidth = 640
     spec.visual.global_.offheight = 480
 
