@@ -13,7 +13,13 @@ from pathlib import Path  # noqa: E402
 
 import click  # noqa: E402
 
-from trainer.config import ROBOTS, load_env_config  # noqa: E402
+from trainer.config import (  # noqa: E402
+    REPRESENTATIONS,
+    REWARDS,
+    ROBOTS,
+    load_env_config,
+    load_train_config,
+)
 from trainer.errors import TrainerError  # noqa: E402
 
 DEMO_OBJECTS = "077_rubiks_cube,013_apple,005_tomato_soup_can"
@@ -104,6 +110,120 @@ def demo(
         recorder.close()
         click.echo(f"video: {path}")
     env.close()
+
+
+@cli.command()
+@click.option("--repr", "representation", type=click.Choice(REPRESENTATIONS), default=None,
+              help="Object representation the policy sees [default: sq].")
+@click.option("--reward", type=click.Choice(REWARDS), default=None,
+              help="sdf (the paper), com (distance to the centre of mass), none (no shaping).")
+@click.option("--robot", type=click.Choice(ROBOTS), default=None, help="[default: ur5e]")
+@click.option("--objects", default=None, help="Object set (builtin, ycb, all) or names.")
+@click.option("--num-envs", type=int, default=None, help="Parallel environments [64].")
+@click.option("--steps", type=int, default=None, help="Total environment steps [10M].")
+@click.option("--seed", type=int, default=None, help="[0]")
+@click.option("--device", default=None, help="Torch device of the networks and tensors [cpu].")
+@click.option("--run-dir", type=click.Path(path_type=Path, file_okay=False), default=None,
+              help="Where the run goes [runs/REPR-REWARD-ROBOT-sSEED].")
+@click.option("--resume", "resume_dir", type=click.Path(path_type=Path, file_okay=False),
+              default=None, help="Continue a killed run from its last checkpoint.")
+@_config_options
+def run(
+    representation: str | None, reward: str | None, robot: str | None, objects: str | None,
+    num_envs: int | None, steps: int | None, seed: int | None, device: str | None,
+    run_dir: Path | None, resume_dir: Path | None, config_path: Path | None,
+    data_dir: Path | None,
+) -> None:
+    """Train a grasping policy with PPO (TorchRL collector, GAE, ClipPPOLoss, Adam).
+
+    The run directory gets config.json (everything resolved), metrics.csv and tb/ (TensorBoard),
+    and checkpoints/. Options override the --config TOML ([ppo], [run] and env sections).
+    """
+    from trainer.ppo import train
+
+    if resume_dir is not None:
+        run_path = train(None, resume_dir, resume=True).path  # type: ignore[arg-type]
+        click.echo(f"run: {run_path}")
+        return
+    env = {
+        k: v for k, v in {
+            "representation": representation, "objects": objects, "num_envs": num_envs,
+            "device": device, "data_dir": data_dir,
+        }.items() if v is not None
+    }
+    run_over = {k: v for k, v in {"total_steps": steps, "seed": seed}.items() if v is not None}
+    cfg = load_train_config(config_path, env=env, run=run_over)
+    if reward is not None or robot is not None:
+        cfg = dataclasses.replace(cfg, env=dataclasses.replace(
+            cfg.env,
+            reward=dataclasses.replace(cfg.env.reward, kind=reward or cfg.env.reward.kind),
+            robot=dataclasses.replace(cfg.env.robot, kind=robot or cfg.env.robot.kind),
+        ))
+    if run_dir is None:
+        e = cfg.env
+        run_dir = Path("runs") / (
+            f"{e.representation}-{e.reward.kind}-{e.robot.kind}-s{cfg.run.seed}"
+        )
+    click.echo(f"run: {run_dir}")
+    train(cfg, run_dir)
+
+
+@cli.command("eval")
+@click.argument("run_dir", type=click.Path(path_type=Path, file_okay=False, exists=True))
+@click.option("--episodes-per-object", default=10, show_default=True)
+@click.option("--objects", default=None, help="Evaluate on these objects instead.")
+def eval_cmd(run_dir: Path, episodes_per_object: int, objects: str | None) -> None:
+    """Success per object of the deterministic policy (eval/per_object.csv, eval/table.md)."""
+    from trainer.evaluation import evaluate
+
+    result = evaluate(run_dir, episodes_per_object, objects)
+    width = max(len(n) for n in result.names)
+    for k, name in enumerate(result.names):
+        click.echo(f"{name:<{width}}  {result.successes[k]}/{result.episodes[k]}")
+    click.echo(f"{'overall':<{width}}  {result.overall:.3f}")
+
+
+@cli.command()
+@click.argument("run_dirs", nargs=-1, required=True,
+                type=click.Path(path_type=Path, file_okay=False, exists=True))
+@click.option("--out", type=click.Path(path_type=Path, file_okay=False), default=Path("report"),
+              show_default=True)
+@click.option("--compare", default=None, help="BASE,OTHER: per-object gain plot of OTHER over "
+              "BASE (representation names or group labels).")
+def report(run_dirs: tuple[Path, ...], out: Path, compare: str | None) -> None:
+    """Tables (final success, steps and minutes to 90 % / 95 %) and plots over runs and seeds."""
+    from trainer.report import write_report
+
+    pair = tuple(compare.split(",")) if compare else None
+    if pair is not None and len(pair) != 2:
+        raise TrainerError("--compare takes two labels: BASE,OTHER (e.g. com,sq)")
+    for path in write_report(list(run_dirs), out, pair):
+        click.echo(str(path))
+
+
+@cli.command()
+@click.argument("run_dir", type=click.Path(path_type=Path, file_okay=False, exists=True))
+@click.option("--object", "object_name", required=True, help="Object to grasp.")
+@click.option("--video", type=click.Path(path_type=Path, dir_okay=False),
+              default=Path("play.mp4"), show_default=True)
+@click.option("--episodes", default=1, show_default=True, help="Episodes side by side.")
+@click.option("--seed", default=0, show_default=True)
+def play(run_dir: Path, object_name: str, video: Path, episodes: int, seed: int) -> None:
+    """Render episodes of the trained (deterministic) policy into a video."""
+    from trainer.env import GraspEnv
+    from trainer.evaluation import run_episodes
+    from trainer.ppo import load_agent
+    from trainer.video import EnvRecorder
+
+    cfg, agent = load_agent(run_dir)
+    env = GraspEnv(dataclasses.replace(cfg.env, objects=object_name, num_envs=episodes), seed)
+    recorder = EnvRecorder(env, range(min(episodes, 4)), width=480, height=360)
+    success, length = run_episodes(env, agent.actor, on_step=recorder.capture)
+    recorder.save(video, fps=cfg.env.physics.control_hz)
+    recorder.close()
+    env.close()
+    click.echo(f"{object_name}: success {int(success.sum())}/{episodes}, "
+               f"{int(length.max())} steps; video: {video}")
 
 
 def main() -> None:

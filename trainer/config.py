@@ -156,6 +156,52 @@ class EnvConfig:
         return 1.0 / (self.physics.control_hz * self.physics.substeps)
 
 
+@dataclass(frozen=True)
+class PPOConfig:
+    """PPO and the networks. The paper's schedule: 16,384 envs x 32 steps per rollout, 5 epochs,
+    minibatch 32,768 (16 minibatches); with fewer envs the rollout length and the number of
+    minibatches stay, so the minibatch shrinks with the env count."""
+
+    frames_per_env: int = 32
+    """Steps of every env per rollout (one PPO iteration)."""
+    epochs: int = 5
+    minibatches: int = 16
+    lr: float = 3e-4
+    gamma: float = 0.99
+    lmbda: float = 0.95
+    clip_epsilon: float = 0.2
+    entropy_coef: float = 0.0
+    critic_coef: float = 1.0
+    max_grad_norm: float = 1.0
+    hidden: tuple[int, ...] = (256, 128, 64)
+    """The 3-layer MLP of the policy and of the value function."""
+    pointnet_hidden: tuple[int, ...] = (64, 128)
+    """Shared per-point MLP of the point-cloud encoder (then max pooling)."""
+    init_log_std: float = -0.5
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """The training run: length, seed, bookkeeping."""
+
+    total_steps: int = 10_000_000
+    """Environment steps (actions of one env count one) before the run stops."""
+    seed: int = 0
+    checkpoint_every: int = 10
+    """Iterations between checkpoints (the last one is always written)."""
+    success_window: int = 0
+    """Episodes in the running success rate; 0 = the number of envs."""
+    torch_threads: int = 1
+    """Threads of torch's own ops (the simulation has its own pool)."""
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    env: EnvConfig = field(default_factory=EnvConfig)
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+    run: RunConfig = field(default_factory=RunConfig)
+
+
 def _build(cls: type, values: dict[str, Any], where: str) -> Any:
     fields = {f.name: f for f in dataclasses.fields(cls)}
     kwargs: dict[str, Any] = {}
@@ -186,8 +232,34 @@ def load_env_config(path: Path | None = None, **overrides: Any) -> EnvConfig:
             raise TrainerError(f"config file not found: {path}: check the --config path") from None
         except tomllib.TOMLDecodeError as exc:
             raise TrainerError(f"config file {path} is not valid TOML: {exc}") from None
+    values = {k: v for k, v in values.items() if k not in ("ppo", "run")}
     cfg = _build(EnvConfig, values, str(path or "config"))
     return dataclasses.replace(cfg, **overrides) if overrides else cfg
+
+
+def load_train_config(
+    path: Path | None = None,
+    env: dict[str, Any] | None = None,
+    ppo: dict[str, Any] | None = None,
+    run: dict[str, Any] | None = None,
+) -> TrainConfig:
+    """Defaults, then the TOML file (environment knobs as in ``load_env_config`` plus ``[ppo]``
+    and ``[run]`` sections), then the override dicts (command-line options)."""
+    env_cfg = load_env_config(path, **(env or {}))  # also reports a missing or broken file
+    values = tomllib.loads(Path(path).read_text()) if path is not None else {}
+    where = str(path or "config")
+    ppo_cfg = _build(PPOConfig, {**values.get("ppo", {}), **(ppo or {})}, f"{where} [ppo]")
+    run_cfg = _build(RunConfig, {**values.get("run", {}), **(run or {})}, f"{where} [run]")
+    return TrainConfig(env_cfg, ppo_cfg, run_cfg)
+
+
+def train_config_from_dict(values: dict[str, Any]) -> TrainConfig:
+    """The inverse of ``config_dict(train_config)`` (a run directory's config.json)."""
+    return TrainConfig(
+        _build(EnvConfig, values["env"], "config.json [env]"),
+        _build(PPOConfig, values["ppo"], "config.json [ppo]"),
+        _build(RunConfig, values["run"], "config.json [run]"),
+    )
 
 
 def config_dict(cfg: Any) -> dict[str, Any]:

@@ -81,6 +81,7 @@ class GraspEnv(EnvBase):
         self.target_rot = torch.eye(3, device=self.device).repeat(E, 1, 1)
         self.ctrl = self.home_ctrl.repeat(E, 1)
         self.palm_pos = self.home_keypoint.repeat(E, 1)
+        self._pending_restore: dict | None = None
         self._make_specs()
 
     # --- setup ------------------------------------------------------------------------------
@@ -156,6 +157,10 @@ class GraspEnv(EnvBase):
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:  # noqa: ANN003
         E = self.cfg.num_envs
         mask = None if tensordict is None else tensordict.get("_reset", None)
+        if self._pending_restore is not None and (mask is None or bool(mask.all())):
+            self._restore(self._pending_restore)
+            self._pending_restore = None
+            return self._observe(reset=True)
         if mask is None:
             ids = torch.arange(E, device=self.device)
         else:
@@ -186,6 +191,30 @@ class GraspEnv(EnvBase):
         self.start_height[ids] = pos[:, 2]
         self.target_pos[ids] = self.home_keypoint
         self.target_rot[ids] = self.home_rot
+
+    # --- checkpoints -------------------------------------------------------------------------
+    def snapshot(self) -> dict:
+        """The whole state of every env (simulation, commands, counters, random generator): with
+        ``restore_on_next_reset`` a resumed run continues exactly where this one stood."""
+        return {
+            "backend": self.backend.state_dict(),
+            "tensors": {
+                name: getattr(self, name).clone()
+                for name in ("step_count", "start_height", "target_pos", "target_rot", "ctrl")
+            },
+            "rng": self._rng.get_state(),
+        }
+
+    def restore_on_next_reset(self, snapshot: dict) -> None:
+        """Make the next full reset (the one a collector does when it starts) put every env back
+        into ``snapshot`` instead of drawing new initial states."""
+        self._pending_restore = snapshot
+
+    def _restore(self, snapshot: dict) -> None:
+        self.backend.load_state_dict(snapshot["backend"])
+        for name, value in snapshot["tensors"].items():
+            setattr(self, name, value.clone().to(self.device))
+        self._rng.set_state(snapshot["rng"])
 
     def _mocap(
         self, n: int, pos: torch.Tensor, rot: torch.Tensor
@@ -240,6 +269,9 @@ class GraspEnv(EnvBase):
         palm_pos, palm_rot = poses.site_pos[:, 0], poses.site_rot[:, 0]
         self.palm_pos = palm_pos
         obs = self._get_obs(qpos, palm_pos, palm_rot, obj_pos, obj_quat, tips)
+        # A blown-up env (flagged unstable, truncated, reset next) must not feed NaN to the
+        # networks or to the value targets.
+        obs = {k: torch.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0) for k, v in obs.items()}
         lift = obj_pos[:, 2] - self.start_height
         terms = self._get_reward(lift, tips, obj_pos, obj_quat, obs)
         success, terminated, truncated, unstable = self._get_termination(lift, obj_pos)
@@ -264,7 +296,8 @@ class GraspEnv(EnvBase):
             device=self.device,
         )
         if not reset:
-            out["reward"] = (terms["lift"] + terms["success"] + terms["contact"])[:, None]
+            reward = terms["lift"] + terms["success"] + terms["contact"]
+            out["reward"] = torch.nan_to_num(reward, nan=0.0, posinf=0.0, neginf=0.0)[:, None]
         return out
 
     def _get_obs(

@@ -61,5 +61,13 @@ class SimBackend(ABC):
         """(E,) bool: environments whose state is not finite or has blown up; the task resets
         them."""
 
+    @abstractmethod
+    def state_dict(self) -> dict:
+        """Everything needed to continue the simulation exactly (for checkpoints)."""
+
+    @abstractmethod
+    def load_state_dict(self, state: dict) -> None:
+        """Restore a ``state_dict`` taken from a backend over the same models."""
+
     def close(self) -> None:  # noqa: B027 (optional hook: most backends hold nothing)
         """Release threads and engine memory."""

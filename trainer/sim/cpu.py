@@ -195,6 +195,16 @@ class MujocoCPUBackend(SimBackend):
         fast = (np.abs(self._state[:, self._qvel]) > MAX_SPEED).any(axis=1)
         return torch.from_numpy(~finite | fast | self._stalled).to(self.device)
 
+    def state_dict(self) -> dict:
+        return {"state": self._state.copy(), "stalled": self._stalled.copy()}
+
+    def load_state_dict(self, state: dict) -> None:
+        if state["state"].shape != self._state.shape:
+            raise ValueError("the saved simulation state is for a different set of envs/models")
+        self._state[:] = state["state"]
+        self._stalled[:] = state["stalled"]
+        self._cache.clear()
+
     def raw_step(self) -> None:
         """One control period with the controls already held and nothing else: the baseline of
         ``bench/env_throughput.py``."""

@@ -1,0 +1,254 @@
+"""trainer.report on synthetic run directories whose thresholds and means are worked out by hand.
+
+Rows are iterations i = 1, 2, ...; env_steps = 100 000 i, wall_time_s = (seconds per iteration) i.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from trainer import report
+from trainer.errors import TrainerError
+
+NAN = math.nan
+
+# (representation, seed, seconds per iteration, success rates, per-object eval or None)
+RUNS = [
+    # 0.9 first at i=5 (500k, 150 s); 0.95 at i=7 (700k, 210 s)
+    (
+        "sq",
+        0,
+        30,
+        [NAN, 0.2, 0.5, 0.8, 0.91, 0.93, 0.96, 0.97, 0.97, 0.98],
+        {"cube": (10, 10), "mug": (10, 8), "plate": (10, 5)},
+    ),
+    # 0.9 reached with equality at i=6 (600k, 204 s); 0.95 likewise at i=8 (800k, 272 s)
+    (
+        "sq",
+        1,
+        34,
+        [NAN, NAN, 0.4, 0.7, 0.85, 0.9, 0.94, 0.95, 0.96, 0.96],
+        {"cube": (10, 9), "mug": (10, 6), "plate": (10, 3)},
+    ),
+    # 0.9 at i=6 (600k, 216 s), after a NaN row; never 0.95
+    (
+        "sq",
+        2,
+        36,
+        [0.1, 0.3, 0.6, 0.88, NAN, 0.92, 0.93, 0.94, 0.93, 0.94],
+        {"cube": (10, 10), "mug": (10, 7), "plate": (10, 4)},
+    ),
+    # 0.9 at i=9 (900k, 270 s); never 0.95
+    (
+        "com",
+        0,
+        30,
+        [0.1, 0.2, 0.3, 0.5, 0.6, 0.7, 0.8, 0.85, 0.92, 0.89],
+        {"cube": (10, 10), "mug": (10, 2), "plate": (5, 1), "bowl": (4, 3)},
+    ),
+    # not evaluated; never 0.9; the last 10 % (2 of 20 rows) average 0.6
+    ("com", 1, 30, [0.0] * 17 + [0.1, 0.5, 0.7], None),
+]
+
+
+def _write_run(
+    root: Path,
+    representation: str,
+    seed: int,
+    seconds: float,
+    rates: list[float],
+    per_object: dict[str, tuple[int, int]] | None,
+) -> Path:
+    path = root / f"{representation}_s{seed}"
+    path.mkdir(parents=True)
+    config = {
+        "env": {
+            "representation": representation,
+            "reward": {"kind": "sdf", "c3": 1.0},
+            "robot": {"kind": "ur5e"},
+            "objects": "builtin",
+            "num_envs": 64,
+        },
+        "ppo": {"lr": 3e-4},
+        "run": {"seed": seed, "total_steps": 1_000_000},
+    }
+    (path / "config.json").write_text(json.dumps(config))
+    lines = ["iteration,env_steps,wall_time_s,success_rate,episodes,loss"]
+    for i, rate in enumerate(rates, start=1):
+        # The trainer leaves the rate empty before the first episode ends.
+        text = "" if math.isnan(rate) else repr(rate)
+        lines.append(f"{i},{100_000 * i},{seconds * i},{text},{3 * i},0.5")
+    (path / "metrics.csv").write_text("\n".join(lines) + "\n")
+    if per_object is not None:
+        (path / "eval").mkdir()
+        rows = ["object,episodes,successes,success_rate"]
+        rows += [f"{name},{e},{s},{s / e}" for name, (e, s) in per_object.items()]
+        (path / "eval" / "per_object.csv").write_text("\n".join(rows) + "\n")
+    return path
+
+
+@pytest.fixture
+def run_dirs(tmp_path: Path) -> list[Path]:
+    return [_write_run(tmp_path / "runs", *spec) for spec in RUNS]
+
+
+@pytest.fixture
+def runs(run_dirs: list[Path]) -> list[report.Run]:
+    return [report.load_run(d) for d in run_dirs]
+
+
+def test_load_run(runs: list[report.Run]) -> None:
+    run = runs[1]
+    assert (run.representation, run.reward, run.robot, run.seed) == ("sq", "sdf", "ur5e", 1)
+    assert run.env_steps[-1] == 1_000_000 and run.wall_time_s[-1] == 340
+    assert np.isnan(run.success_rate[:2]).all() and run.success_rate[5] == 0.9
+    assert run.per_object == {"cube": (10, 9), "mug": (10, 6), "plate": (10, 3)}
+    assert runs[4].per_object is None
+
+
+def test_steps_to_reach(runs: list[report.Run]) -> None:
+    expected = {
+        0.9: [(500_000, 150), (600_000, 204), (600_000, 216), (900_000, 270), None],
+        0.95: [(700_000, 210), (800_000, 272), None, None, None],
+    }
+    for threshold, per_run in expected.items():
+        for run, want in zip(runs, per_run, strict=True):
+            got = report.steps_to_reach(run, threshold)
+            if want is None:
+                assert all(math.isnan(v) for v in got), (threshold, run.path)
+            else:
+                assert got == want, (threshold, run.path)
+
+
+def test_final_success_prefers_eval(runs: list[report.Run]) -> None:
+    assert report.training_success(runs[0]) == 0.98  # last 1 of 10 rows
+    assert report.final_success(runs[0]) == pytest.approx(23 / 30)  # eval overall instead
+    # Overall is successes / episodes, not the mean over objects (which would be 0.5375).
+    assert report.eval_success(runs[3]) == pytest.approx(16 / 29)
+    assert report.final_success(runs[4]) == pytest.approx(0.6)  # no eval: last 2 of 20 rows
+    assert report.training_success(runs[4], last_fraction=0.15) == pytest.approx(1.3 / 3)
+
+
+def test_summary_table(runs: list[report.Run]) -> None:
+    lines = report.summary_table(runs).splitlines()
+    assert lines[0] == (
+        "| representation | reward | robot | seeds | final success | steps to 90 % (M) "
+        "| minutes to 90 % | steps to 95 % (M) | minutes to 95 % |"
+    )
+    # final: eval overall 23/30, 18/30, 21/30 -> mean 0.6889, std 0.0685
+    # 90 %: 0.5, 0.6, 0.6 M -> 0.5667 ± 0.0471; 2.5, 3.4, 3.6 min -> 3.1667 ± 0.4784
+    # 95 %: 0.7, 0.8 M -> 0.75 ± 0.05; 3.5, 4.5333 min -> 4.0167 ± 0.5167 (2 of 3 seeds)
+    assert lines[2] == (
+        "| sq | sdf | ur5e | 3 | 0.69 ± 0.07 | 0.57 ± 0.05 | 3.2 ± 0.5 "
+        "| 0.75 ± 0.05 (2/3 seeds) | 4.0 ± 0.5 (2/3 seeds) |"
+    )
+    # final: 16/29 = 0.5517 (eval) and 0.6 (training tail) -> 0.5759 ± 0.0241
+    assert lines[3] == (
+        "| com | sdf | ur5e | 2 | 0.58 ± 0.02 | 0.90 ± 0.00 (1/2 seeds) "
+        "| 4.5 ± 0.0 (1/2 seeds) | — | — |"
+    )
+    assert len(lines) == 4
+
+
+def test_per_object_table(runs: list[report.Run]) -> None:
+    lines = report.per_object_table(runs).splitlines()
+    assert lines[0] == "| object | sq | com |"
+    rows = {line.split(" | ")[0].strip("| "): line for line in lines[2:]}
+    assert list(rows) == ["bowl", "cube", "mug", "plate", "mean"]
+    assert rows["bowl"] == "| bowl | — | 0.75 |"
+    assert rows["cube"] == "| cube | 0.97 | 1.00 |"
+    # sq: (0.9667 + 0.7 + 0.4) / 3 = 0.6889; com (one evaluated seed): (1 + 0.2 + 0.2 + 0.75) / 4
+    assert rows["mean"] == "| mean | 0.69 | 0.54 |"
+
+
+def test_group_labels_name_reward_and_robot_when_they_differ(runs: list[report.Run]) -> None:
+    assert set(report.group_labels(runs).values()) == {"sq", "com"}
+    other = report.Run(
+        path=Path("x"),
+        representation="sq",
+        reward="none",
+        robot="ur5e",
+        seed=0,
+        env_steps=np.ones(1),
+        wall_time_s=np.ones(1),
+        success_rate=np.ones(1),
+        per_object=None,
+    )
+    labels = report.group_labels([*runs, other])
+    assert set(labels.values()) == {"sq/sdf/ur5e", "com/sdf/ur5e", "sq/none/ur5e"}
+    assert report.resolve_group([*runs, other], "com") == ("com", "sdf", "ur5e")
+    with pytest.raises(TrainerError, match="several groups"):
+        report.resolve_group([*runs, other], "sq")
+
+
+def test_success_gain(runs: list[report.Run]) -> None:
+    gains = report.success_gain(runs, "com", "sq")
+    assert [name for name, _ in gains] == ["mug", "plate", "cube"]  # bowl: only com has it
+    assert [g for _, g in gains] == pytest.approx([0.5, 0.2, -1 / 30])
+
+
+def test_mean_curve_covers_only_the_common_range(runs: list[report.Run]) -> None:
+    grid, mean, std = report.mean_curve(runs[:3])
+    # sq seed 1 logs its first rate at i=3; all three end at i=10.
+    assert grid[0] == 300_000 and grid[-1] == 1_000_000
+    assert mean[-1] == pytest.approx(0.96) and std[-1] == pytest.approx(np.std([0.98, 0.96, 0.94]))
+    # At i=3 seed 0 is at 0.5, seed 1 at 0.4, seed 2 at 0.6.
+    assert mean[0] == pytest.approx(0.5)
+
+
+def test_write_report(run_dirs: list[Path], tmp_path: Path) -> None:
+    out = tmp_path / "report"
+    written = report.write_report(run_dirs, out, compare=("com", "sq"))
+    names = {p.name for p in written}
+    assert names == {
+        "report.md",
+        "success_vs_steps.png",
+        "success_vs_time.png",
+        "gain_sq_over_com.png",
+    }
+    for path in written:
+        assert path.parent == out and path.is_file()
+        if path.suffix == ".png":
+            with Image.open(path) as image:
+                assert image.format == "PNG" and image.width > 0 and image.height > 0
+    text = (out / "report.md").read_text()
+    assert "| sq | sdf | ur5e | 3 | 0.69 ± 0.07 |" in text
+    assert "| mean | 0.69 | 0.54 |" in text
+    assert "(gain_sq_over_com.png)" in text and "(success_vs_time.png)" in text
+    assert not list(out.glob(".*tmp*"))
+
+
+def test_write_report_rejects_unknown_group_before_writing(
+    run_dirs: list[Path], tmp_path: Path
+) -> None:
+    with pytest.raises(TrainerError, match="no group named 'pc32'"):
+        report.write_report(run_dirs, tmp_path / "report", compare=("pc32", "sq"))
+    assert not (tmp_path / "report").exists()
+
+
+def test_missing_metrics_names_the_path(run_dirs: list[Path]) -> None:
+    metrics = run_dirs[0] / "metrics.csv"
+    metrics.unlink()
+    with pytest.raises(TrainerError, match="metrics.csv") as err:
+        report.load_run(run_dirs[0])
+    assert str(metrics) in str(err.value) and "\n" not in str(err.value)
+
+
+def test_malformed_inputs_name_the_path(run_dirs: list[Path]) -> None:
+    config = run_dirs[0] / "config.json"
+    config.write_text(json.dumps({"env": {"representation": "sq", "robot": {"kind": "ur5e"}}}))
+    with pytest.raises(TrainerError, match="env.reward.kind") as err:
+        report.load_run(run_dirs[0])
+    assert str(config) in str(err.value)
+
+    metrics = run_dirs[1] / "metrics.csv"
+    metrics.write_text(metrics.read_text() + "11,1100000,374,oops,33,0.5\n")
+    with pytest.raises(TrainerError, match="success_rate 'oops'") as err:
+        report.load_run(run_dirs[1])
+    assert f"{metrics}:12" in str(err.value)

@@ -1,0 +1,293 @@
+"""PPO on the batched grasping environment, with TorchRL's collector, GAE and ClipPPOLoss.
+
+Reading order: ``train`` is the whole algorithm, top to bottom: collect a rollout of
+``frames_per_env`` steps from every env, compute advantages (GAE, values in reward units),
+normalize the value targets, run ``epochs`` passes of minibatch updates, update the observation
+statistics, log, checkpoint. The run directory layout is in ``RunDir``.
+
+Resuming: a checkpoint holds the networks, optimizer, normalizers, every random generator and
+the whole simulation state of every env, so ``train(..., resume=True)`` continues a killed run
+exactly as if it had never stopped (``tests/test_ppo.py`` checks this bit for bit).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import time
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from torch.utils.tensorboard import SummaryWriter
+from torchrl.collectors import Collector
+from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.value import GAE
+from tqdm import tqdm
+
+from geomprep.store import atomic_path
+from trainer.config import TrainConfig, config_dict, train_config_from_dict
+from trainer.env import GraspEnv
+from trainer.errors import TrainerError
+from trainer.models import Agent
+
+METRICS = (
+    "iteration", "env_steps", "wall_time_s", "fps", "success_rate", "episodes",
+    "episode_return", "episode_length", "unstable_resets", "loss_objective", "loss_critic",
+    "loss_entropy", "entropy", "kl_approx", "clip_fraction", "action_std",
+)
+LOSS_KEYS = ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx", "clip_fraction")  # noqa: E501
+
+
+@dataclass(frozen=True)
+class RunDir:
+    """A training run on disk: ``config.json`` (the resolved config), ``metrics.csv`` (one row
+    per iteration), ``tb/`` (TensorBoard), ``checkpoints/iter_NNNNNN.pt`` and ``last.pt``."""
+
+    path: Path
+
+    @property
+    def config(self) -> Path:
+        return self.path / "config.json"
+
+    @property
+    def metrics(self) -> Path:
+        return self.path / "metrics.csv"
+
+    @property
+    def checkpoints(self) -> Path:
+        return self.path / "checkpoints"
+
+    @property
+    def last(self) -> Path:
+        return self.checkpoints / "last.pt"
+
+    def load_config(self) -> TrainConfig:
+        if not self.config.is_file():
+            raise TrainerError(f"{self.path} is not a run directory (no config.json)")
+        return train_config_from_dict(json.loads(self.config.read_text()))
+
+
+def iteration_frames(cfg: TrainConfig) -> int:
+    return cfg.env.num_envs * cfg.ppo.frames_per_env
+
+
+def train(
+    cfg: TrainConfig,
+    run_dir: Path,
+    resume: bool = False,
+    progress: bool = True,
+    stop_after: int | None = None,
+) -> RunDir:
+    """Train (or, with ``resume``, continue) the run in ``run_dir``; returns it.
+
+    ``stop_after``: leave after this many iterations of this call, as a killed run would (the
+    work since the last checkpoint is lost); used by the resume test."""
+    run = RunDir(Path(run_dir))
+    if resume:
+        if not run.last.is_file():
+            raise TrainerError(f"{run.path}: no checkpoint to resume from (checkpoints/last.pt)")
+        cfg = run.load_config()
+    elif run.last.is_file():
+        raise TrainerError(f"{run.path} already holds a run: resume it with --resume {run.path}")
+    run.path.mkdir(parents=True, exist_ok=True)
+    with atomic_path(run.config) as tmp:
+        tmp.write_text(json.dumps(config_dict(cfg), indent=2))
+
+    torch.set_num_threads(cfg.run.torch_threads)
+    torch.manual_seed(cfg.run.seed)
+    ppo = cfg.ppo
+    env = GraspEnv(cfg.env, seed=cfg.run.seed)
+    agent = Agent(cfg.env.representation, ppo).to(env.device)
+    optimizer = torch.optim.Adam(agent.parameters(), lr=ppo.lr)
+    advantage = GAE(gamma=ppo.gamma, lmbda=ppo.lmbda, value_network=agent.critic_denorm)
+    loss_module = ClipPPOLoss(
+        agent.actor, agent.critic, clip_epsilon=ppo.clip_epsilon,
+        entropy_bonus=True, entropy_coeff=ppo.entropy_coef,
+        critic_coeff=ppo.critic_coef, loss_critic_type="l2", normalize_advantage=True,
+    )
+    shuffle = torch.Generator().manual_seed(cfg.run.seed)
+    frames = iteration_frames(cfg)
+    total_iterations = math.ceil(cfg.run.total_steps / frames)
+    minibatch = max(1, frames // ppo.minibatches)
+    window = cfg.run.success_window or cfg.env.num_envs
+    outcomes: deque[bool] = deque(maxlen=window)
+    episode_return = torch.zeros(cfg.env.num_envs)
+    episode_length = torch.zeros(cfg.env.num_envs)
+    iteration, wall_offset = 0, 0.0
+    checkpoint = None
+    if resume:
+        checkpoint = torch.load(run.last, weights_only=False)
+        agent.load_state_dict(checkpoint["agent"])
+        optimizer.load_state_dict(checkpoint["optimizer"])
+        shuffle.set_state(checkpoint["shuffle_rng"])
+        outcomes.extend(checkpoint["outcomes"])
+        episode_return, episode_length = checkpoint["episode_return"], checkpoint["episode_length"]
+        iteration, wall_offset = checkpoint["iteration"], checkpoint["wall_time_s"]
+        env.restore_on_next_reset(checkpoint["env"])
+        _truncate_metrics(run.metrics, iteration)
+    collector = Collector(
+        env, agent.actor, frames_per_batch=frames, total_frames=-1,
+        auto_register_policy_transforms=False,
+    )
+    if checkpoint is not None:
+        torch.set_rng_state(checkpoint["torch_rng"])  # after the collector's own set-up
+    writer = SummaryWriter(str(run.path / "tb"), purge_step=iteration + 1 if resume else None)
+    bar = tqdm(
+        total=total_iterations * frames, initial=iteration * frames, unit="step",
+        unit_scale=True, disable=not progress, dynamic_ncols=True,
+    )
+    start = time.perf_counter() - wall_offset
+    last_time, last_steps = time.perf_counter(), iteration * frames
+    try:
+        for data in collector:
+            if iteration >= total_iterations or (stop_after is not None and stop_after <= 0):
+                break
+            if stop_after is not None:
+                stop_after -= 1
+            iteration += 1
+            # data: (E, T). Advantages with values in reward units; the critic learns the
+            # normalized targets.
+            with torch.no_grad():
+                advantage(data)
+            agent.value_norm.update(data["value_target"])
+            data["value_target"] = agent.value_norm(data["value_target"])
+            data["state_value"] = agent.value_norm(data["state_value"])
+            flat = data.reshape(-1)
+            losses: dict[str, list[float]] = {k: [] for k in LOSS_KEYS}
+            for _ in range(ppo.epochs):
+                order = torch.randperm(flat.shape[0], generator=shuffle)
+                for index in order.split(minibatch):
+                    out = loss_module(flat[index])
+                    loss = out["loss_objective"] + out["loss_critic"]
+                    if "loss_entropy" in out:
+                        loss = loss + out["loss_entropy"]
+                    optimizer.zero_grad(set_to_none=True)
+                    loss.backward()
+                    torch.nn.utils.clip_grad_norm_(agent.parameters(), ppo.max_grad_norm)
+                    optimizer.step()
+                    for key in LOSS_KEYS:
+                        if key in out:
+                            losses[key].append(float(out[key].detach().mean()))
+            agent.obs_norm.update(data["proprio"], data["object"])
+
+            stats = _episode_stats(data, outcomes, episode_return, episode_length)
+            now = time.perf_counter()
+            steps = iteration * frames
+            row = {
+                "iteration": iteration,
+                "env_steps": steps,
+                "wall_time_s": now - start,
+                "fps": (steps - last_steps) / max(now - last_time, 1e-9),
+                "success_rate": sum(outcomes) / len(outcomes) if outcomes else float("nan"),
+                **stats,
+                **{k: (sum(v) / len(v) if v else float("nan")) for k, v in losses.items()},
+                "action_std": float(agent.policy_net.log_std.detach().exp().mean()),
+            }
+            last_time, last_steps = now, steps
+            _append_metrics(run.metrics, row)
+            for key, value in row.items():
+                if key != "iteration":
+                    writer.add_scalar(key, value, iteration)
+            bar.update(frames)
+            bar.set_postfix(success=f"{row['success_rate']:.2f}", it=iteration)
+            if iteration % cfg.run.checkpoint_every == 0 or iteration == total_iterations:
+                _save_checkpoint(
+                    run, iteration, agent, optimizer, shuffle, outcomes, episode_return,
+                    episode_length, env, row["wall_time_s"],
+                )
+    finally:
+        bar.close()
+        writer.close()
+        collector.shutdown()
+    return run
+
+
+def _episode_stats(
+    data, outcomes: deque, episode_return: torch.Tensor, episode_length: torch.Tensor  # noqa: ANN001
+) -> dict[str, float]:
+    """Walk the rollout in time (a loop over T steps, not over envs): accumulate returns, record
+    the episodes that ended. Updates ``outcomes`` and the running return/length in place."""
+    reward = data["next", "reward"][..., 0]
+    done = data["next", "done"][..., 0]
+    success = data["next", "success"][..., 0]
+    returns, lengths = [], []
+    for t in range(reward.shape[1]):
+        episode_return += reward[:, t]
+        episode_length += 1
+        ended = done[:, t]
+        if ended.any():
+            returns.append(episode_return[ended].clone())
+            lengths.append(episode_length[ended].clone())
+            outcomes.extend(success[ended, t].tolist())
+            episode_return[ended] = 0.0
+            episode_length[ended] = 0.0
+    ended_returns = torch.cat(returns) if returns else torch.zeros(0)
+    ended_lengths = torch.cat(lengths) if lengths else torch.zeros(0)
+    return {
+        "episodes": int(done.sum()),
+        "episode_return": float(ended_returns.mean()) if len(ended_returns) else float("nan"),
+        "episode_length": float(ended_lengths.mean()) if len(ended_lengths) else float("nan"),
+        "unstable_resets": int(data["next", "unstable"].sum()),
+    }
+
+
+def _append_metrics(path: Path, row: dict) -> None:
+    new = not path.is_file()
+    with open(path, "a", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=METRICS)
+        if new:
+            writer.writeheader()
+        writer.writerow({k: row[k] for k in METRICS})
+
+
+def _truncate_metrics(path: Path, iteration: int) -> None:
+    """Drop the rows a killed run wrote after its last checkpoint (they will be redone)."""
+    if not path.is_file():
+        return
+    with open(path, newline="") as handle:
+        rows = [r for r in csv.DictReader(handle) if int(r["iteration"]) <= iteration]
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=METRICS)
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def _save_checkpoint(
+    run: RunDir, iteration: int, agent: Agent, optimizer: torch.optim.Optimizer,
+    shuffle: torch.Generator, outcomes: deque, episode_return: torch.Tensor,
+    episode_length: torch.Tensor, env: GraspEnv, wall_time_s: float,
+) -> None:
+    state = {
+        "iteration": iteration,
+        "wall_time_s": wall_time_s,
+        "agent": agent.state_dict(),
+        "optimizer": optimizer.state_dict(),
+        "shuffle_rng": shuffle.get_state(),
+        "torch_rng": torch.get_rng_state(),
+        "outcomes": list(outcomes),
+        "episode_return": episode_return.clone(),
+        "episode_length": episode_length.clone(),
+        "env": env.snapshot(),
+    }
+    run.checkpoints.mkdir(parents=True, exist_ok=True)
+    path = run.checkpoints / f"iter_{iteration:06d}.pt"
+    with atomic_path(path) as tmp:
+        torch.save(state, tmp)
+    with atomic_path(run.last) as tmp:
+        torch.save(state, tmp)
+
+
+def load_agent(run_dir: Path, checkpoint: Path | None = None) -> tuple[TrainConfig, Agent]:
+    """A trained run's config and agent (networks + normalizers) from its last checkpoint."""
+    run = RunDir(Path(run_dir))
+    cfg = run.load_config()
+    path = checkpoint or run.last
+    if not path.is_file():
+        raise TrainerError(f"{run.path}: no checkpoint yet ({path}); train it with trainer run")
+    agent = Agent(cfg.env.representation, cfg.ppo)
+    agent.load_state_dict(torch.load(path, weights_only=False)["agent"])
+    agent.eval()
+    return cfg, agent

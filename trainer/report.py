@@ -1,0 +1,566 @@
+"""Compare finished training runs: markdown tables and plots like the paper's Table II and Fig. 4.
+
+A run directory is read as the trainer writes it::
+
+    RUN_DIR/config.json            env.representation, env.reward.kind, env.robot.kind, run.seed
+    RUN_DIR/metrics.csv            one row per PPO iteration: env_steps, wall_time_s, success_rate
+    RUN_DIR/eval/per_object.csv    optional (``trainer eval``): object, episodes, successes
+
+Runs are grouped by (representation, reward kind, robot kind); the runs of a group are taken to
+differ by seed, and every table cell is a mean ± std (ddof = 0) over them. Units: env steps are
+counted over all parallel environments, wall time is seconds in the data and minutes in tables
+and plots, success rates are fractions in [0, 1].
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from geomprep.store import atomic_path
+from trainer.errors import TrainerError
+
+GroupKey = tuple[str, str, str]
+"""(representation, reward kind, robot kind)."""
+
+THRESHOLDS = (0.9, 0.95)
+CURVE_POINTS = 200
+_DASH = "—"
+
+
+@dataclass(frozen=True, eq=False)
+class Run:
+    """One training run directory, loaded.
+
+    ``env_steps`` (steps summed over all environments), ``wall_time_s`` (s) and ``success_rate``
+    (fraction, NaN where no episode ended) hold one entry per PPO iteration, in file order.
+    ``per_object`` maps an object name to (episodes, successes) from ``eval/per_object.csv``,
+    or is None when the run was not evaluated.
+    """
+
+    path: Path
+    representation: str
+    reward: str
+    robot: str
+    seed: int | None
+    env_steps: np.ndarray
+    wall_time_s: np.ndarray
+    success_rate: np.ndarray
+    per_object: dict[str, tuple[int, int]] | None
+
+    @property
+    def group(self) -> GroupKey:
+        return (self.representation, self.reward, self.robot)
+
+
+# --------------------------------------------------------------------------------------- loading
+
+
+def load_run(path: str | Path) -> Run:
+    """Read a run directory; raise TrainerError naming the file and the fix if it is unusable."""
+    path = Path(path)
+    if not path.is_dir():
+        raise TrainerError(
+            f"{path}: not a directory; pass a run directory written by trainer run"
+        )
+    representation, reward, robot, seed = _read_config(path / "config.json")
+    env_steps, wall_time_s, success_rate = _read_metrics(path / "metrics.csv")
+    per_object_path = path / "eval" / "per_object.csv"
+    per_object = _read_per_object(per_object_path) if per_object_path.is_file() else None
+    return Run(
+        path=path,
+        representation=representation,
+        reward=reward,
+        robot=robot,
+        seed=seed,
+        env_steps=env_steps,
+        wall_time_s=wall_time_s,
+        success_rate=success_rate,
+        per_object=per_object,
+    )
+
+
+def _read_config(path: Path) -> tuple[str, str, str, int | None]:
+    fix = "pass a run directory written by trainer run"
+    if not path.is_file():
+        raise TrainerError(f"{path}: missing; {fix}")
+    try:
+        config = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise TrainerError(f"{path}: unreadable JSON ({err}); {fix}") from None
+
+    def get(*keys: str) -> Any:
+        node = config
+        for key in keys:
+            if not isinstance(node, dict) or key not in node:
+                raise TrainerError(f"{path}: no {'.'.join(keys)}; {fix}")
+            node = node[key]
+        return node
+
+    names = (
+        get("env", "representation"),
+        get("env", "reward", "kind"),
+        get("env", "robot", "kind"),
+    )
+    for name, keys in zip(
+        names, ("env.representation", "env.reward.kind", "env.robot.kind"), strict=True
+    ):
+        if not isinstance(name, str):
+            raise TrainerError(f"{path}: {keys} is {name!r}, not a string; {fix}")
+    # A seed is only a label in the tables, so a config without one is still reportable.
+    run_section = config.get("run")
+    seed = run_section.get("seed") if isinstance(run_section, dict) else None
+    if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool)):
+        raise TrainerError(f"{path}: run.seed is {seed!r}, not an integer; {fix}")
+    return names[0], names[1], names[2], seed
+
+
+def _read_metrics(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    fix = "pass a run directory written by trainer run"
+    if not path.is_file():
+        raise TrainerError(f"{path}: missing; {fix}")
+    columns = ("env_steps", "wall_time_s", "success_rate")
+    rows: list[tuple[float, float, float]] = []
+    try:
+        with path.open(newline="") as f:
+            reader = csv.DictReader(f)
+            missing = [c for c in columns if c not in (reader.fieldnames or ())]
+            if missing:
+                raise TrainerError(f"{path}: header lacks {', '.join(missing)}; {fix}")
+            for row in reader:
+                rows.append(
+                    (
+                        _number(row["env_steps"], path, reader.line_num, "env_steps"),
+                        _number(row["wall_time_s"], path, reader.line_num, "wall_time_s"),
+                        # Empty until the first episode ends: NaN, skipped by every statistic.
+                        _number(
+                            row["success_rate"],
+                            path,
+                            reader.line_num,
+                            "success_rate",
+                            allow_empty=True,
+                        ),
+                    )
+                )
+    except (OSError, UnicodeDecodeError, csv.Error) as err:
+        raise TrainerError(f"{path}: unreadable CSV ({err}); {fix}") from None
+    if not rows:
+        raise TrainerError(f"{path}: no iterations logged yet; report on the run once it has some")
+    data = np.array(rows, dtype=np.float64)
+    return data[:, 0], data[:, 1], data[:, 2]
+
+
+def _number(
+    text: str | None, path: Path, line: int, column: str, allow_empty: bool = False
+) -> float:
+    # DictReader gives None for the fields of a short row (a line cut off mid-write).
+    if text is None or (text.strip() == "" and not allow_empty):
+        raise TrainerError(f"{path}:{line}: no {column} value; fix or drop that line")
+    if text.strip() == "":
+        return math.nan
+    try:
+        return float(text)
+    except ValueError:
+        raise TrainerError(
+            f"{path}:{line}: {column} {text!r} is not a number; fix or drop that line"
+        ) from None
+
+
+def _read_per_object(path: Path) -> dict[str, tuple[int, int]]:
+    fix = "re-run trainer eval on the run"
+    result: dict[str, tuple[int, int]] = {}
+    try:
+        with path.open(newline="") as f:
+            reader = csv.DictReader(f)
+            missing = [
+                c for c in ("object", "episodes", "successes") if c not in (reader.fieldnames or ())
+            ]
+            if missing:
+                raise TrainerError(f"{path}: header lacks {', '.join(missing)}; {fix}")
+            for row in reader:
+                name = row["object"]
+                try:
+                    episodes, successes = int(row["episodes"]), int(row["successes"])
+                except (TypeError, ValueError):
+                    raise TrainerError(
+                        f"{path}:{reader.line_num}: episodes/successes are not integers; {fix}"
+                    ) from None
+                if not name or name in result or not 0 <= successes <= episodes:
+                    raise TrainerError(
+                        f"{path}:{reader.line_num}: bad row for object {name!r} (empty, repeated "
+                        f"or successes outside 0..episodes); {fix}"
+                    )
+                result[name] = (episodes, successes)
+    except (OSError, UnicodeDecodeError, csv.Error) as err:
+        raise TrainerError(f"{path}: unreadable CSV ({err}); {fix}") from None
+    if not result:
+        raise TrainerError(f"{path}: no objects; {fix}")
+    return result
+
+
+# ----------------------------------------------------------------------------------- per-run stats
+
+
+def steps_to_reach(run: Run, threshold: float) -> tuple[float, float]:
+    """(env steps, wall time in s) at the first iteration whose success_rate >= ``threshold``.
+
+    The raw logged rates are used, unsmoothed; iterations without a rate (NaN) never count.
+    Returns (nan, nan) if the run never reaches the threshold.
+    """
+    hits = np.flatnonzero(run.success_rate >= threshold)  # NaN compares False
+    if hits.size == 0:
+        return math.nan, math.nan
+    first = hits[0]
+    return float(run.env_steps[first]), float(run.wall_time_s[first])
+
+
+def training_success(run: Run, last_fraction: float = 0.1) -> float:
+    """Mean training success_rate over the last ``last_fraction`` of iterations (at least one).
+
+    NaN rates are ignored; NaN if the window has none.
+    """
+    if not 0.0 < last_fraction <= 1.0:
+        raise TrainerError(f"last_fraction must be in (0, 1], got {last_fraction}")
+    n = len(run.success_rate)
+    # The epsilon keeps 0.1 * 30 = 3.0000000000000004 from rounding up to 4 rows.
+    count = max(1, math.ceil(n * last_fraction - 1e-9))
+    tail = run.success_rate[-count:]
+    tail = tail[np.isfinite(tail)]
+    return float(tail.mean()) if tail.size else math.nan
+
+
+def eval_success(run: Run) -> float:
+    """Overall ``trainer eval`` success: total successes / total episodes; NaN if not evaluated."""
+    if run.per_object is None:
+        return math.nan
+    episodes = sum(e for e, _ in run.per_object.values())
+    successes = sum(s for _, s in run.per_object.values())
+    return successes / episodes if episodes else math.nan
+
+
+def final_success(run: Run, last_fraction: float = 0.1) -> float:
+    """The run's final success rate (fraction).
+
+    The ``trainer eval`` overall (``eval_success``) when the run has eval/per_object.csv, because
+    it is measured on a fixed set of episodes with the final policy, while the training rate mixes
+    the exploring policy of several iterations and whatever episodes happened to end. Otherwise
+    the training curve's tail (``training_success``), which stays available on its own.
+    """
+    if run.per_object is not None:
+        return eval_success(run)
+    return training_success(run, last_fraction)
+
+
+# ------------------------------------------------------------------------------------- grouping
+
+
+def group_runs(runs: Iterable[Run]) -> dict[GroupKey, list[Run]]:
+    """Runs by group key, groups in order of first appearance, runs within a group by seed."""
+    groups: dict[GroupKey, list[Run]] = {}
+    for run in runs:
+        groups.setdefault(run.group, []).append(run)
+    for members in groups.values():
+        members.sort(key=lambda r: (r.seed is None, r.seed if r.seed is not None else 0))
+    return groups
+
+
+def group_labels(runs: Iterable[Run]) -> dict[GroupKey, str]:
+    """A column label per group: the representation alone when the groups share reward and robot,
+    else ``representation/reward/robot``."""
+    keys = list(group_runs(runs))
+    if len({(reward, robot) for _, reward, robot in keys}) <= 1:
+        return {key: key[0] for key in keys}
+    return {key: "/".join(key) for key in keys}
+
+
+def resolve_group(runs: Sequence[Run], name: str) -> GroupKey:
+    """The group a user names, by label or else by representation (if that names one group)."""
+    labels = group_labels(runs)
+    for key, label in labels.items():
+        if label == name:
+            return key
+    matches = [key for key in labels if key[0] == name]
+    if len(matches) == 1:
+        return matches[0]
+    known = ", ".join(labels.values())
+    if matches:
+        raise TrainerError(f"{name!r} names several groups; use one of the labels: {known}")
+    raise TrainerError(f"no group named {name!r}; the runs' groups are: {known}")
+
+
+def _per_object_rates(members: Sequence[Run]) -> dict[str, float]:
+    """Per object, the mean over seeds of each seed's successes / episodes (evaluated runs only)."""
+    rates: dict[str, list[float]] = {}
+    for run in members:
+        for name, (episodes, successes) in (run.per_object or {}).items():
+            if episodes:
+                rates.setdefault(name, []).append(successes / episodes)
+    return {name: float(np.mean(values)) for name, values in rates.items()}
+
+
+# --------------------------------------------------------------------------------------- tables
+
+
+def _mean_std(values: Sequence[float], digits: int) -> str:
+    """``mean ± std`` over the finite values; "(k/n seeds)" appended when some are missing."""
+    finite = np.array([v for v in values if math.isfinite(v)], dtype=np.float64)
+    if finite.size == 0:
+        return _DASH
+    text = f"{finite.mean():.{digits}f} ± {finite.std(ddof=0):.{digits}f}"
+    if finite.size < len(values):
+        text += f" ({finite.size}/{len(values)} seeds)"
+    return text
+
+
+def _percent(threshold: float) -> str:
+    return f"{threshold * 100:g} %"
+
+
+def summary_table(
+    runs: Sequence[Run], thresholds: Sequence[float] = THRESHOLDS, last_fraction: float = 0.1
+) -> str:
+    """Markdown table, one line per group: final success and env steps (M) / minutes to reach
+    each threshold, as mean ± std over seeds. Seeds that never reach a threshold are left out of
+    its mean (the cell says how many did); "—" where none did."""
+    header = ["representation", "reward", "robot", "seeds", "final success"]
+    for threshold in thresholds:
+        header += [f"steps to {_percent(threshold)} (M)", f"minutes to {_percent(threshold)}"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for (representation, reward, robot), members in group_runs(runs).items():
+        cells = [representation, reward, robot, str(len(members))]
+        cells.append(_mean_std([final_success(r, last_fraction) for r in members], 2))
+        for threshold in thresholds:
+            reached = [steps_to_reach(r, threshold) for r in members]
+            cells.append(_mean_std([steps / 1e6 for steps, _ in reached], 2))
+            cells.append(_mean_std([seconds / 60 for _, seconds in reached], 1))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def per_object_table(runs: Sequence[Run]) -> str:
+    """Markdown table like the paper's Table I: one row per object, one column per group with
+    eval data, each cell the mean over that group's seeds of the object's success rate; "—" where
+    a group has no episodes of the object. The last row is the mean of each column's cells (every
+    object weighs the same, whatever its episode count)."""
+    labels = group_labels(runs)
+    groups = {
+        key: members
+        for key, members in group_runs(runs).items()
+        if any(r.per_object is not None for r in members)
+    }
+    if not groups:
+        raise TrainerError("no run has eval/per_object.csv; run trainer eval on the runs first")
+    rates = {key: _per_object_rates(members) for key, members in groups.items()}
+    objects = sorted(set().union(*(r.keys() for r in rates.values())))
+    lines = [
+        "| object | " + " | ".join(labels[key] for key in groups) + " |",
+        "|" + "---|" * (len(groups) + 1),
+    ]
+    for name in objects:
+        cells = [f"{rates[key][name]:.2f}" if name in rates[key] else _DASH for key in groups]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    means = [f"{np.mean(list(r.values())):.2f}" if r else _DASH for r in rates.values()]
+    lines.append("| mean | " + " | ".join(means) + " |")
+    return "\n".join(lines) + "\n"
+
+
+# ---------------------------------------------------------------------------------------- plots
+
+
+def _pyplot() -> Any:
+    # Imported on first plot so that importing the module (e.g. from the CLI) stays cheap, and
+    # Agg so that plotting works on a headless training machine.
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig: Any, out_png: Path) -> Path:
+    out_png = Path(out_png)
+    try:
+        with atomic_path(out_png) as tmp:
+            # The temporary name has no .png suffix to infer the format from.
+            fig.savefig(tmp, format="png", dpi=120, bbox_inches="tight")
+    finally:
+        _pyplot().close(fig)
+    return out_png
+
+
+def mean_curve(
+    members: Sequence[Run],
+    x: Literal["env_steps", "wall_time_s"] = "env_steps",
+    points: int = CURVE_POINTS,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(x grid, mean, std over seeds) of the success curves of one group, or None if no seed
+    has a success rate yet.
+
+    Each seed's curve (NaN rows dropped) is linearly interpolated onto a common grid spanning the
+    x range every seed covers, so nothing is extrapolated; x is in the units of the column.
+    """
+    curves = []
+    for run in members:
+        xs = getattr(run, x)
+        valid = np.isfinite(run.success_rate) & np.isfinite(xs)
+        if valid.any():
+            curves.append((xs[valid], run.success_rate[valid]))
+    if not curves:
+        return None
+    lo = max(float(xs[0]) for xs, _ in curves)
+    hi = min(float(xs[-1]) for xs, _ in curves)
+    grid = np.linspace(lo, hi, points) if hi > lo else np.array([hi])
+    values = np.stack([np.interp(grid, xs, ys) for xs, ys in curves])
+    return grid, values.mean(axis=0), values.std(axis=0, ddof=0)
+
+
+def plot_curves(
+    runs: Sequence[Run],
+    out_png: str | Path,
+    x: Literal["env_steps", "wall_time_s"] = "env_steps",
+) -> Path:
+    """Success rate vs env steps (M) or vs wall time (min): per group, the mean over seeds with a
+    ± std band (see ``mean_curve``). Writes ``out_png`` atomically and returns it."""
+    if x not in ("env_steps", "wall_time_s"):
+        raise TrainerError(f"x must be env_steps or wall_time_s, got {x!r}")
+    scale, xlabel = (1e6, "env steps (M)") if x == "env_steps" else (60.0, "wall time (min)")
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    labels = group_labels(runs)
+    for key, members in group_runs(runs).items():
+        curve = mean_curve(members, x)
+        if curve is None:
+            continue
+        grid, mean, std = curve
+        line = ax.plot(
+            grid / scale,
+            mean,
+            marker="o" if grid.size == 1 else None,
+            label=f"{labels[key]} ({len(members)} seeds)",
+        )[0]
+        # A rate cannot leave [0, 1] even where mean ± std does.
+        band = np.clip(mean - std, 0.0, 1.0), np.clip(mean + std, 0.0, 1.0)
+        ax.fill_between(grid / scale, *band, color=line.get_color(), alpha=0.2)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("success rate")
+    ax.set_ylim(0.0, 1.02)
+    ax.grid(alpha=0.3)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="lower right")
+    return _save(fig, Path(out_png))
+
+
+def success_gain(runs: Sequence[Run], base: str, other: str) -> list[tuple[str, float]]:
+    """Per object evaluated in both groups: mean success of ``other`` minus that of ``base``
+    (fractions), largest gain first. Groups are named as in ``resolve_group``."""
+    groups = group_runs(runs)
+    base_rates = _per_object_rates(groups[resolve_group(runs, base)])
+    other_rates = _per_object_rates(groups[resolve_group(runs, other)])
+    for name, rates in ((base, base_rates), (other, other_rates)):
+        if not rates:
+            raise TrainerError(f"group {name!r} has no eval/per_object.csv; run trainer eval on it")
+    common = sorted(base_rates.keys() & other_rates.keys())
+    if not common:
+        raise TrainerError(f"groups {base!r} and {other!r} were evaluated on no common object")
+    gains = [(name, other_rates[name] - base_rates[name]) for name in common]
+    return sorted(gains, key=lambda item: (-item[1], item[0]))
+
+
+def plot_gain(runs: Sequence[Run], base: str, other: str, out_png: str | Path) -> Path:
+    """Bar chart of ``success_gain`` (like the paper's Fig. 4), objects sorted by gain.
+    Writes ``out_png`` atomically and returns it."""
+    gains = success_gain(runs, base, other)
+    names = [name for name, _ in gains]
+    values = np.array([gain for _, gain in gains])
+    plt = _pyplot()
+    # Wide enough that rotated object names do not overlap with the full YCB set.
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.25 * len(names) + 2.0), 4.5))
+    colors = np.where(values >= 0, "tab:green", "tab:red")
+    ax.bar(np.arange(len(names)), values, color=colors)
+    ax.axhline(0.0, color="k", linewidth=0.8)
+    ax.set_xticks(np.arange(len(names)), names, rotation=90, fontsize=7)
+    ax.set_xlim(-0.6, len(names) - 0.4)
+    ax.set_ylabel(f"success gain ({other} − {base})")
+    ax.set_title(f"per-object success gain of {other} over {base} (mean {values.mean():+.2f})")
+    ax.grid(axis="y", alpha=0.3)
+    return _save(fig, Path(out_png))
+
+
+# --------------------------------------------------------------------------------------- report
+
+
+def _file_label(name: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "-" for c in name)
+
+
+def write_report(
+    run_dirs: Sequence[str | Path], out_dir: str | Path, compare: tuple[str, str] | None = None
+) -> list[Path]:
+    """Load the runs and write into ``out_dir``: ``success_vs_steps.png``,
+    ``success_vs_time.png``, ``gain_<other>_over_<base>.png`` when ``compare = (base, other)``
+    is given (group labels or representation names), and ``report.md`` with the summary table,
+    the per-object table when any run has eval data, and links to the images. Every file is
+    written atomically; returns the written paths, report.md last."""
+    if not run_dirs:
+        raise TrainerError("no run directories given; pass at least one run directory")
+    # The same directory given twice (e.g. overlapping globs) would count as an extra seed.
+    unique = list(dict.fromkeys(Path(d).resolve() for d in run_dirs))
+    runs = [load_run(d) for d in unique]
+    out_dir = Path(out_dir)
+    evaluated = [r for r in runs if r.per_object is not None]
+
+    if compare is not None:
+        success_gain(runs, *compare)  # a bad name fails here, before any file is written
+    written = [
+        plot_curves(runs, out_dir / "success_vs_steps.png", x="env_steps"),
+        plot_curves(runs, out_dir / "success_vs_time.png", x="wall_time_s"),
+    ]
+    if compare is not None:
+        base, other = compare
+        name = f"gain_{_file_label(other)}_over_{_file_label(base)}.png"
+        written.append(plot_gain(runs, base, other, out_dir / name))
+
+    parts = ["# Training report", ""]
+    parts += [f"{len(runs)} runs in {len(group_runs(runs))} groups.", ""]
+    parts += ["## Summary", "", summary_table(runs)]
+    parts += [
+        f"Final success: the `trainer eval` overall (successes / episodes) for the "
+        f"{len(evaluated)} evaluated runs, the mean training success rate over the last 10 % of "
+        f"iterations for the other {len(runs) - len(evaluated)}. Steps and minutes to a threshold "
+        f"are at the first iteration whose training success rate reaches it; mean ± std over "
+        f"seeds (ddof 0) of the seeds that reached it.",
+        "",
+    ]
+    if evaluated:
+        parts += ["## Success per object (`trainer eval`)", "", per_object_table(runs)]
+    parts += [
+        "## Curves",
+        "",
+        "![success vs env steps](success_vs_steps.png)",
+        "",
+        "![success vs wall time](success_vs_time.png)",
+        "",
+    ]
+    if compare is not None:
+        parts += [
+            f"## Gain of {compare[1]} over {compare[0]}",
+            "",
+            f"![gain]({written[-1].name})",
+            "",
+        ]
+    parts += ["## Runs", ""]
+    parts += [f"- `{r.path}`: {'/'.join(r.group)}, seed {r.seed}" for r in runs]
+
+    report = out_dir / "report.md"
+    with atomic_path(report) as tmp:
+        tmp.write_text("\n".join(parts) + "\n")
+    written.append(report)
+    return written
