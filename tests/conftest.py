@@ -54,15 +54,21 @@ def builtin_data(tmp_path_factory: pytest.TempPathFactory) -> Config:
     return cfg
 
 
+def build_ycb(tmp_path_factory: pytest.TempPathFactory, label: str, names: tuple[str, ...]) -> Config:  # noqa: E501
+    """A fresh data directory with ``names`` imported from YCB_DIR and built (skips the test
+    if the YCB models are absent)."""
+    ycb = require_ycb()
+    cfg = Config(data_dir=tmp_path_factory.mktemp(label) / "data")
+    fetch.import_directory(ycb, cfg.raw_dir, names)
+    report = pipeline.build(cfg, list(names), jobs=2, progress=False)
+    assert not report.failed, report.failed
+    return cfg
+
+
 @pytest.fixture(scope="session")
 def ycb_data(tmp_path_factory: pytest.TempPathFactory) -> Config:
     """A data directory with the four test YCB objects imported from YCB_DIR and built."""
-    ycb = require_ycb()
-    cfg = Config(data_dir=tmp_path_factory.mktemp("ycb") / "data")
-    fetch.import_directory(ycb, cfg.raw_dir, YCB_TEST_OBJECTS)
-    report = pipeline.build(cfg, list(YCB_TEST_OBJECTS), jobs=2, progress=False)
-    assert not report.failed, report.failed
-    return cfg
+    return build_ycb(tmp_path_factory, "ycb", YCB_TEST_OBJECTS)
 
 
 @pytest.fixture(params=["builtin", "ycb"])

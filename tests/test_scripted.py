@@ -14,9 +14,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from geomprep import fetch, pipeline
 from geomprep.config import Config
-from tests.conftest import require_ycb
+from tests.conftest import build_ycb
 from trainer.config import load_env_config
 from trainer.env import GraspEnv
 from trainer.scripted import run_scripted_grasp
@@ -27,12 +26,7 @@ TRIALS = 10
 
 @pytest.fixture(scope="module")
 def grasp_data(tmp_path_factory: pytest.TempPathFactory) -> Config:
-    ycb = require_ycb()
-    cfg = Config(data_dir=tmp_path_factory.mktemp("grasp") / "data")
-    fetch.import_directory(ycb, cfg.raw_dir, GRASP_OBJECTS)
-    report = pipeline.build(cfg, list(GRASP_OBJECTS), jobs=2, progress=False)
-    assert not report.failed, report.failed
-    return cfg
+    return build_ycb(tmp_path_factory, "grasp", GRASP_OBJECTS)
 
 
 def lifted_per_object(data_dir: Path, names: tuple[str, ...], seed: int) -> dict[str, int]:

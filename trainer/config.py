@@ -221,20 +221,27 @@ def _build(cls: type, values: dict[str, Any], where: str) -> Any:
     return cls(**kwargs)
 
 
+def _read_toml(path: Path | None) -> dict[str, Any]:
+    if path is None:
+        return {}
+    try:
+        return tomllib.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise TrainerError(f"config file not found: {path}: check the --config path") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise TrainerError(f"config file {path} is not valid TOML: {exc}") from None
+
+
+def _env_config(values: dict[str, Any], where: str, overrides: dict[str, Any]) -> EnvConfig:
+    values = {k: v for k, v in values.items() if k not in ("ppo", "run")}
+    cfg = _build(EnvConfig, values, where)
+    return dataclasses.replace(cfg, **overrides) if overrides else cfg
+
+
 def load_env_config(path: Path | None = None, **overrides: Any) -> EnvConfig:
     """Defaults, then the TOML file at ``path``, then keyword ``overrides`` (top-level fields or
     whole sections), e.g. ``load_env_config(representation="sdf", num_envs=16)``."""
-    values: dict[str, Any] = {}
-    if path is not None:
-        try:
-            values = tomllib.loads(Path(path).read_text())
-        except FileNotFoundError:
-            raise TrainerError(f"config file not found: {path}: check the --config path") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise TrainerError(f"config file {path} is not valid TOML: {exc}") from None
-    values = {k: v for k, v in values.items() if k not in ("ppo", "run")}
-    cfg = _build(EnvConfig, values, str(path or "config"))
-    return dataclasses.replace(cfg, **overrides) if overrides else cfg
+    return _env_config(_read_toml(path), str(path or "config"), overrides)
 
 
 def load_train_config(
@@ -245,12 +252,13 @@ def load_train_config(
 ) -> TrainConfig:
     """Defaults, then the TOML file (environment knobs as in ``load_env_config`` plus ``[ppo]``
     and ``[run]`` sections), then the override dicts (command-line options)."""
-    env_cfg = load_env_config(path, **(env or {}))  # also reports a missing or broken file
-    values = tomllib.loads(Path(path).read_text()) if path is not None else {}
+    values = _read_toml(path)
     where = str(path or "config")
-    ppo_cfg = _build(PPOConfig, {**values.get("ppo", {}), **(ppo or {})}, f"{where} [ppo]")
-    run_cfg = _build(RunConfig, {**values.get("run", {}), **(run or {})}, f"{where} [run]")
-    return TrainConfig(env_cfg, ppo_cfg, run_cfg)
+    return TrainConfig(
+        _env_config(values, where, env or {}),
+        _build(PPOConfig, {**values.get("ppo", {}), **(ppo or {})}, f"{where} [ppo]"),
+        _build(RunConfig, {**values.get("run", {}), **(run or {})}, f"{where} [run]"),
+    )
 
 
 def train_config_from_dict(values: dict[str, Any]) -> TrainConfig:
