@@ -4,7 +4,7 @@ env-only: the collector stepping the environments with the (untrained) policy an
 training: the whole PPO iteration (collection, GAE, the minibatch epochs, normalizer updates,
 logging). Prints both and the ratio (target >= 0.50: learning must not dominate the cost).
 
-    python bench/ppo_throughput.py [--envs 64,256] [--repr com] [--iterations 5]
+    python bench/ppo_throughput.py [--envs 64,256] [--repr com] [--iterations 5] [--no-compile]
 """
 
 from __future__ import annotations
@@ -46,12 +46,17 @@ def main() -> None:
     parser.add_argument("--repr", default="com")
     parser.add_argument("--objects", default="builtin")
     parser.add_argument("--iterations", type=int, default=5)
+    parser.add_argument(
+        "--compile", action=argparse.BooleanOptionalAction, default=True,
+        help="torch.compile the env's task computations (as trainer run does by default)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     print(f"{'envs':>6} {'repr':>6} {'train frames/s':>15} {'env-only frames/s':>18} {'ratio':>6}")
     for n in (int(v) for v in args.envs.split(",")):
         cfg = load_train_config(
-            env={"num_envs": n, "representation": args.repr, "objects": args.objects},
+            env={"num_envs": n, "representation": args.repr, "objects": args.objects,
+                 "compile": args.compile},
             run={"total_steps": n * 32 * (args.iterations + 1), "checkpoint_every": 10**9},
         )
         env_rate = env_only_rate(cfg, args.iterations)

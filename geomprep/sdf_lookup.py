@@ -226,6 +226,8 @@ class SDFLookup(torch.nn.Module):
         (COM) in the world; object_quat: (E, 4) (w, x, y, z), object-to-world rotation;
         object_ids: (E,) long, index into the stacked grids.
         """
+        if torch.compiler.is_compiling():
+            return self._query_for_compiler(points_world, object_pos, object_quat, object_ids)
         ids = object_ids.long()
         n_env, k = points_world.shape[:2]
         # Per env, the affine map world offset -> voxel coordinates: u = A (p - pos) + shift with
@@ -243,6 +245,35 @@ class SDFLookup(torch.nn.Module):
         return self._interpolate(buf, ids, k)
 
     forward = query  # calling the module is querying it
+
+    def _query_for_compiler(
+        self,
+        points_world: torch.Tensor,
+        object_pos: torch.Tensor,
+        object_quat: torch.Tensor,
+        object_ids: torch.Tensor,
+    ) -> torch.Tensor:
+        """``query`` written plainly, for ``torch.compile`` (which fuses it into one loop; the
+        eager path's in-place and ``out=`` tricks would break its graph).  Same rule, same
+        result to float32 rounding."""
+        r = self.resolution
+        ids = object_ids.long()
+        local = (points_world - object_pos[:, None]) @ quat_to_matrix(object_quat.float())
+        u = local * self.inv_voxel[ids][:, None, None] + self.shift[ids][:, None, :]
+        outside = ((u < -0.5) | (u > r - 0.5)).any(-1, keepdim=True)
+        u = u.clamp(0.0, r - 1.0)
+        base = u.floor().clamp(0.0, r - 2.0)
+        t = u - base
+        t = torch.where(outside, t.round(), t)
+        b = base.long()
+        flat = ids[:, None] * r**3 + b[..., 0] * (r * r) + b[..., 1] * r + b[..., 2]
+        grid = self.grids.view(-1)
+        steps = [di * r * r + dj * r + dk for dk in (0, 1) for dj in (0, 1) for di in (0, 1)]
+        corner = [grid[flat + step].float() for step in steps]
+        tx, ty, tz = t.unbind(-1)
+        c = [torch.lerp(corner[i], corner[i + 4], tz) for i in range(4)]  # (di, dj)
+        c = [torch.lerp(c[i], c[i + 2], ty) for i in range(2)]  # di
+        return torch.lerp(c[0], c[1], tx)
 
     def _world_to_voxel(self, object_quat: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
         """(3, 3, E): R^T / voxel per env, R from the (w, x, y, z) quaternions (E, 4).

@@ -12,6 +12,7 @@ import pytest
 import torch
 from click.testing import CliRunner
 from torchrl.collectors import Collector
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.objectives import ClipPPOLoss
 
 from geomprep.config import Config
@@ -20,7 +21,7 @@ from trainer.config import load_train_config
 from trainer.env import GraspEnv
 from trainer.evaluation import evaluate, run_episodes
 from trainer.models import Agent, RunningNorm
-from trainer.ppo import load_agent, train
+from trainer.ppo import load_agent, minibatch_size, train
 
 OBJECTS = "builtin_cylinder,builtin_sphere"
 
@@ -29,10 +30,38 @@ def tiny_config(data_dir: Path, iterations: int = 3, representation: str = "com"
     return load_train_config(
         env={"num_envs": 4, "objects": OBJECTS, "representation": representation,
              "data_dir": data_dir, "max_steps": 20},
-        ppo={"frames_per_env": 8, "minibatches": 2, "epochs": 2, "hidden": (32, 32, 32),
+        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 2,
+             "hidden": (32, 32, 32),
              "pointnet_hidden": (16, 16)},
         run={"total_steps": 4 * 8 * iterations, "checkpoint_every": 2, "seed": 3},
     )
+
+
+def test_minibatch_size_scales_with_env_count() -> None:
+    def size(num_envs: int) -> int:
+        return minibatch_size(load_train_config(env={"num_envs": num_envs}))
+
+    assert size(16384) == 32768  # the paper: 16 minibatches of 32,768
+    assert size(1024) == 2048  # 16 minibatches
+    assert size(64) == 1024  # 2 minibatches: at least min_minibatch frames
+    assert size(16) == 512  # never more than the rollout
+
+
+def test_untrained_policy_keeps_the_home_posture(builtin_data: Config) -> None:
+    # The untrained policy's mean action: hand pose still, thumb opposed, fingers open; the
+    # env then holds the home hand targets (up to the 1 % weight of the observation).
+    cfg = tiny_config(builtin_data.data_dir)
+    env = GraspEnv(cfg.env, seed=0)
+    agent = Agent(cfg.env.representation, cfg.ppo)
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        td = env.step(agent.actor(env.reset()))
+    hand = td["action"][:, 6:]
+    torch.testing.assert_close(hand, torch.tensor([[1.0, -1, -1, -1, -1]]).expand(4, 5),
+                               atol=0.2, rtol=0)
+    targets = env.ctrl[:, env.hand_act]
+    torch.testing.assert_close(targets, env.home_ctrl[env.hand_act].expand(4, 5), atol=0.2,
+                               rtol=0)
+    env.close()
 
 
 def test_running_norm_matches_batch_statistics() -> None:
@@ -125,14 +154,16 @@ def test_eval_counts_match_a_manual_count(builtin_data: Config, tmp_path: Path) 
 def test_cli_run_eval_play_report(builtin_data: Config, tmp_path: Path) -> None:
     config = tmp_path / "tiny.toml"
     config.write_text(
-        "max_steps = 20\n[ppo]\nframes_per_env = 8\nminibatches = 2\nepochs = 1\n"
+        "max_steps = 20\n[ppo]\nframes_per_env = 8\nminibatches = 2\nmin_minibatch = 1\n"
+        "epochs = 1\n"
         "hidden = [32, 32, 32]\n[run]\ncheckpoint_every = 1\n"
     )
     runner = CliRunner()
     common = ["--data-dir", str(builtin_data.data_dir), "--config", str(config)]
     run_dir = tmp_path / "runs" / "sq"
     result = runner.invoke(cli, ["run", "--repr", "sq", "--objects", OBJECTS, "--num-envs", "4",
-                                 "--steps", "64", "--run-dir", str(run_dir), *common])
+                                 "--steps", "64", "--run-dir", str(run_dir), "--no-compile",
+                                 *common])
     assert result.exit_code == 0, result.output
     result = runner.invoke(cli, ["eval", str(run_dir), "--episodes-per-object", "2"])
     assert result.exit_code == 0, result.output

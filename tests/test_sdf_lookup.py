@@ -191,6 +191,14 @@ def test_batched_mixed_ids_match_naive(box: SDFGrid) -> None:
     )
     # float32 pose arithmetic moves points by ~1e-7 m; the field is 1-Lipschitz.
     np.testing.assert_allclose(got.numpy(), expect, atol=2e-6)
+    # The plain code path that torch.compile traces (run eagerly here) follows the same rule.
+    plain = lookup._query_for_compiler(
+        torch.tensor(world, dtype=torch.float32),
+        torch.tensor(pos, dtype=torch.float32),
+        torch.tensor(quats, dtype=torch.float32),
+        torch.tensor(ids),
+    )
+    np.testing.assert_allclose(plain.numpy(), expect, atol=2e-6)
 
 
 def test_float16_error_bound(box: SDFGrid) -> None:

@@ -129,6 +129,11 @@ class EnvConfig:
     nthread: int = 0
     """Simulation threads; 0 = all cores."""
     sdf_dtype: str = "float32"
+    compile: bool = False
+    """Compile the per-step task computations (kinematics, observations, reward) with
+    ``torch.compile``: about 2x less torch time per step at small env counts, after a
+    one-off compilation of ~30-60 s per representation (cached on disk). Needs a C++ compiler
+    on CPU."""
     physics: PhysicsConfig = field(default_factory=PhysicsConfig)
     robot: RobotConfig = field(default_factory=RobotConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
@@ -159,14 +164,24 @@ class EnvConfig:
 @dataclass(frozen=True)
 class PPOConfig:
     """PPO and the networks. The paper's schedule: 16,384 envs x 32 steps per rollout, 5 epochs,
-    minibatch 32,768 (16 minibatches); with fewer envs the rollout length and the number of
-    minibatches stay, so the minibatch shrinks with the env count."""
+    minibatch 32,768 (16 minibatches); with fewer envs the rollout length stays and the rollout
+    is cut into at most ``minibatches`` minibatches of at least ``min_minibatch`` frames (tiny
+    minibatches would make the update cost, not the simulation, the bottleneck on a CPU)."""
 
     frames_per_env: int = 32
     """Steps of every env per rollout (one PPO iteration)."""
     epochs: int = 5
     minibatches: int = 16
+    min_minibatch: int = 1024
     lr: float = 3e-4
+    """Initial learning rate (Adam)."""
+    lr_schedule: str = "adaptive"
+    """``adaptive``: after every epoch, divide the learning rate by 1.5 when the epoch's mean
+    approximate KL to the rollout policy exceeds twice ``kl_target`` and multiply it by 1.5 when
+    it is below half of it (rl_games' schedule; the paper trained with rl_games); ``fixed``:
+    keep ``lr``."""
+    kl_target: float = 0.016
+    lr_bounds: tuple[float, float] = (1e-6, 1e-2)
     gamma: float = 0.99
     lmbda: float = 0.95
     clip_epsilon: float = 0.2
@@ -178,6 +193,17 @@ class PPOConfig:
     pointnet_hidden: tuple[int, ...] = (64, 128)
     """Shared per-point MLP of the point-cloud encoder (then max pooling)."""
     init_log_std: float = -0.5
+    init_action_mean: tuple[float, ...] = (0.0,) * 6 + (1.0, -1.0, -1.0, -1.0, -1.0)
+    """Mean action of the untrained policy (the output layer's bias): the hand pose holds still
+    and the hand keeps its home posture, thumb opposed and fingers open. A zero mean would
+    half-close every finger at the first step, so that exploration would start from a hand that
+    cannot open around an object."""
+
+    def __post_init__(self) -> None:
+        if self.lr_schedule not in ("adaptive", "fixed"):
+            raise TrainerError(
+                f"unknown lr_schedule {self.lr_schedule!r}: choose adaptive or fixed"
+            )
 
 
 @dataclass(frozen=True)

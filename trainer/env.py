@@ -82,6 +82,16 @@ class GraspEnv(EnvBase):
         self.ctrl = self.home_ctrl.repeat(E, 1)
         self.palm_pos = self.home_keypoint.repeat(E, 1)
         self._pending_restore: dict | None = None
+        self._task_outputs = self._task_outputs_eager
+        self._commands = self._commands_eager
+        if cfg.compile:
+            # Fuses the hundreds of small per-step tensor ops into a few C++ loops (graphs are
+            # compiled on first use, then cached on disk by torch). Every env instance (each
+            # representation, env count, robot) is one more specialization of the same code, and
+            # past torch's default limit of 8 it would silently fall back to eager.
+            torch._dynamo.config.recompile_limit = max(torch._dynamo.config.recompile_limit, 64)
+            self._task_outputs = torch.compile(self._task_outputs_eager, dynamic=False)
+            self._commands = torch.compile(self._commands_eager, dynamic=False)
         self._make_specs()
 
     # --- setup ------------------------------------------------------------------------------
@@ -237,24 +247,42 @@ class GraspEnv(EnvBase):
     # --- task --------------------------------------------------------------------------------
     def _apply_action(self, action: torch.Tensor) -> tuple[torch.Tensor | None, torch.Tensor | None]:  # noqa: E501
         """Move the commanded hand pose by the action and turn it into actuator targets."""
+        self.target_pos, self.target_rot, self.ctrl = self._commands(
+            action, self.palm_pos, self.target_pos, self.target_rot, self.ctrl, self.backend.qpos
+        )
+        return self._mocap(self.num_envs, self.target_pos, self.target_rot)
+
+    def _commands_eager(
+        self,
+        action: torch.Tensor,
+        palm_pos: torch.Tensor,
+        target_pos: torch.Tensor,
+        target_rot: torch.Tensor,
+        ctrl: torch.Tensor,
+        qpos: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The new commanded palm pose (E, 3), (E, 3, 3) and actuator targets (E, nu), a pure
+        tensor function (``torch.compile`` fuses it when ``cfg.compile``).
+
+        palm_pos: measured at the last observation (the current state); qpos (E, nq)."""
         robot = self.cfg.robot
-        palm_pos = self.palm_pos  # measured at the last observation, the current state
         # The command accumulates, so small tracking errors do not drift; a leash keeps it near
         # the measured hand when the hand is blocked (by the table or the object).
-        lag = (self.target_pos - palm_pos).clamp(-robot.leash, robot.leash)
-        self.target_pos = palm_pos + lag + action[:, :3] * robot.pos_step
-        self.target_rot = axis_angle_to_matrix(action[:, 3:6] * robot.rot_step) @ self.target_rot
+        lag = (target_pos - palm_pos).clamp(-robot.leash, robot.leash)
+        target_pos = palm_pos + lag + action[:, :3] * robot.pos_step
+        target_rot = axis_angle_to_matrix(action[:, 3:6] * robot.rot_step) @ target_rot
         hand = self.hand_open + 0.5 * (action[:, 6:] + 1.0) * (self.hand_closed - self.hand_open)
-        self.ctrl[:, self.hand_act] = hand
-        if self.floating:
-            return self._mocap(self.num_envs, self.target_pos, self.target_rot)
-        qpos = self.backend.qpos.clone()
-        qpos[:, self.arm_qpos] = self.ctrl[:, self.arm_act]  # refine the previous arm targets
-        self.ctrl[:, self.arm_act] = jacobian_transpose_step(
-            self.palm_kinematics, qpos, self.arm_qpos, C.UR5E_JOINTS, "palm",
-            self.target_pos, self.target_rot, robot.jt_iterations, robot.jt_rotation_scale,
-        )
-        return None, None
+        ctrl = ctrl.clone()
+        ctrl[:, self.hand_act] = hand
+        if not self.floating:
+            # UR5e joint targets by the Jacobian transpose, refining the previous targets.
+            qpos = qpos.clone()
+            qpos[:, self.arm_qpos] = ctrl[:, self.arm_act]
+            ctrl[:, self.arm_act] = jacobian_transpose_step(
+                self.palm_kinematics, qpos, self.arm_qpos, C.UR5E_JOINTS, "palm",
+                target_pos, target_rot, robot.jt_iterations, robot.jt_rotation_scale,
+            )
+        return target_pos, target_rot, ctrl
 
     @property
     def num_envs(self) -> int:
@@ -262,19 +290,12 @@ class GraspEnv(EnvBase):
 
     def _observe(self, reset: bool) -> TensorDictBase:
         qpos = self.backend.qpos
-        poses = self.kinematics.forward(qpos)
-        obj_pos = qpos[:, self.obj_qpos : self.obj_qpos + 3]
-        obj_quat = qpos[:, self.obj_qpos + 3 : self.obj_qpos + 7]
-        tips = poses.site_pos[:, 1:]
-        palm_pos, palm_rot = poses.site_pos[:, 0], poses.site_rot[:, 0]
+        obs, terms, flags, palm_pos = self._task_outputs(qpos, self.start_height, self.step_count)
         self.palm_pos = palm_pos
-        obs = self._get_obs(qpos, palm_pos, palm_rot, obj_pos, obj_quat, tips)
-        # A blown-up env (flagged unstable, truncated, reset next) must not feed NaN to the
-        # networks or to the value targets.
-        obs = {k: torch.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0) for k, v in obs.items()}
-        lift = obj_pos[:, 2] - self.start_height
-        terms = self._get_reward(lift, tips, obj_pos, obj_quat, obs)
-        success, terminated, truncated, unstable = self._get_termination(lift, obj_pos)
+        lift = terms.pop("lift_height")
+        success, terminated, truncated = flags
+        unstable = self.backend.unstable()
+        truncated = truncated | unstable
         if reset:
             terms = {k: torch.zeros_like(v) for k, v in terms.items()}
             success = terminated = truncated = unstable = torch.zeros_like(success)
@@ -296,9 +317,32 @@ class GraspEnv(EnvBase):
             device=self.device,
         )
         if not reset:
-            reward = terms["lift"] + terms["success"] + terms["contact"]
-            out["reward"] = torch.nan_to_num(reward, nan=0.0, posinf=0.0, neginf=0.0)[:, None]
+            out["reward"] = terms["reward"][:, None]
         return out
+
+    def _task_outputs_eager(
+        self, qpos: torch.Tensor, start_height: torch.Tensor, step_count: torch.Tensor
+    ) -> tuple[dict, dict, tuple, torch.Tensor]:
+        """Everything the task computes from the simulated state, as a pure tensor function
+        (``torch.compile`` fuses it when ``cfg.compile``): (observations, reward terms with
+        their sum ``reward`` and ``lift_height``, (success, terminated, truncated), palm
+        position (E, 3))."""
+        poses = self.kinematics.forward(qpos)
+        obj_pos = qpos[:, self.obj_qpos : self.obj_qpos + 3]
+        obj_quat = qpos[:, self.obj_qpos + 3 : self.obj_qpos + 7]
+        tips = poses.site_pos[:, 1:]
+        palm_pos, palm_rot = poses.site_pos[:, 0], poses.site_rot[:, 0]
+        obs = self._get_obs(qpos, palm_pos, palm_rot, obj_pos, obj_quat, tips)
+        # A blown-up env (flagged unstable, truncated, reset next) must not feed NaN to the
+        # networks or to the value targets.
+        obs = {k: torch.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0) for k, v in obs.items()}
+        lift = obj_pos[:, 2] - start_height
+        terms = self._get_reward(lift, tips, obj_pos, obj_quat, obs)
+        reward = terms["lift"] + terms["success"] + terms["contact"]
+        terms["reward"] = torch.nan_to_num(reward, nan=0.0, posinf=0.0, neginf=0.0)
+        terms["lift_height"] = lift
+        flags = self._get_termination(lift, obj_pos, step_count)
+        return obs, terms, flags, palm_pos
 
     def _get_obs(
         self,
@@ -345,14 +389,14 @@ class GraspEnv(EnvBase):
         return terms
 
     def _get_termination(
-        self, lift: torch.Tensor, obj_pos: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(success, terminated, truncated, unstable), each (E,) bool."""
+        self, lift: torch.Tensor, obj_pos: torch.Tensor, step_count: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(success, terminated, truncated), each (E,) bool; a blown-up simulation (non-finite
+        object position) truncates."""
         success = lift >= self.cfg.reward.h_bar
         fell = obj_pos[:, 2] < self.cfg.fall_height
-        unstable = self.backend.unstable() | ~torch.isfinite(obj_pos).all(-1)
-        truncated = (self.step_count >= self.cfg.max_steps) | unstable
-        return success, success | fell, truncated, unstable
+        truncated = (step_count >= self.cfg.max_steps) | ~torch.isfinite(obj_pos).all(-1)
+        return success, success | fell, truncated
 
     def close(self, *, raise_if_closed: bool = True) -> None:  # noqa: D102
         self.backend.close()

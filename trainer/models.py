@@ -118,8 +118,11 @@ class PolicyNet(nn.Module):
         self.encoder = Encoder(representation, norm, cfg)
         self.body = mlp([self.encoder.out_dim, *cfg.hidden])
         self.loc = nn.Linear(cfg.hidden[-1], ACTION_DIM)
-        nn.init.zeros_(self.loc.bias)
-        self.loc.weight.data.mul_(0.01)  # start near the zero action: the hand holds still
+        if len(cfg.init_action_mean) != ACTION_DIM:
+            raise ValueError(f"init_action_mean needs {ACTION_DIM} values")
+        with torch.no_grad():
+            self.loc.bias.copy_(torch.tensor(cfg.init_action_mean))
+            self.loc.weight.mul_(0.01)  # start near the mean action whatever the observation
         self.log_std = nn.Parameter(torch.full((ACTION_DIM,), cfg.init_log_std))
 
     def forward(self, proprio: torch.Tensor, obj: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:  # noqa: E501

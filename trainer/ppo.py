@@ -36,7 +36,7 @@ from trainer.models import Agent
 METRICS = (
     "iteration", "env_steps", "wall_time_s", "fps", "success_rate", "episodes",
     "episode_return", "episode_length", "unstable_resets", "loss_objective", "loss_critic",
-    "loss_entropy", "entropy", "kl_approx", "clip_fraction", "action_std",
+    "loss_entropy", "entropy", "kl_approx", "clip_fraction", "action_std", "lr",
 )
 LOSS_KEYS = ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx", "clip_fraction")  # noqa: E501
 
@@ -72,6 +72,13 @@ class RunDir:
 
 def iteration_frames(cfg: TrainConfig) -> int:
     return cfg.env.num_envs * cfg.ppo.frames_per_env
+
+
+def minibatch_size(cfg: TrainConfig) -> int:
+    """Frames per minibatch: the rollout in ``minibatches`` parts, but at least
+    ``min_minibatch`` frames (and at most the whole rollout)."""
+    frames = iteration_frames(cfg)
+    return min(frames, max(frames // cfg.ppo.minibatches, cfg.ppo.min_minibatch, 1))
 
 
 def train(
@@ -111,7 +118,7 @@ def train(
     shuffle = torch.Generator().manual_seed(cfg.run.seed)
     frames = iteration_frames(cfg)
     total_iterations = math.ceil(cfg.run.total_steps / frames)
-    minibatch = max(1, frames // ppo.minibatches)
+    minibatch = minibatch_size(cfg)
     window = cfg.run.success_window or cfg.env.num_envs
     outcomes: deque[bool] = deque(maxlen=window)
     episode_return = torch.zeros(cfg.env.num_envs)
@@ -171,6 +178,9 @@ def train(
                     for key in LOSS_KEYS:
                         if key in out:
                             losses[key].append(float(out[key].detach().mean()))
+                if ppo.lr_schedule == "adaptive":
+                    epoch_kl = losses["kl_approx"][-math.ceil(len(order) / minibatch) :]
+                    _adapt_lr(optimizer, sum(epoch_kl) / len(epoch_kl), ppo)
             agent.obs_norm.update(data["proprio"], data["object"])
 
             stats = _episode_stats(data, outcomes, episode_return, episode_length)
@@ -185,6 +195,7 @@ def train(
                 **stats,
                 **{k: (sum(v) / len(v) if v else float("nan")) for k, v in losses.items()},
                 "action_std": float(agent.policy_net.log_std.detach().exp().mean()),
+                "lr": optimizer.param_groups[0]["lr"],
             }
             last_time, last_steps = now, steps
             _append_metrics(run.metrics, row)
@@ -203,6 +214,16 @@ def train(
         writer.close()
         collector.shutdown()
     return run
+
+
+def _adapt_lr(optimizer: torch.optim.Optimizer, kl: float, ppo) -> None:  # noqa: ANN001
+    """Keep the policy's step size near ``ppo.kl_target`` (rl_games' adaptive schedule)."""
+    low, high = ppo.lr_bounds
+    for group in optimizer.param_groups:
+        if kl > 2.0 * ppo.kl_target:
+            group["lr"] = max(group["lr"] / 1.5, low)
+        elif kl < 0.5 * ppo.kl_target:
+            group["lr"] = min(group["lr"] * 1.5, high)
 
 
 def _episode_stats(
