@@ -47,10 +47,12 @@ def test_minibatch_size_scales_with_env_count() -> None:
     assert size(16) == 512  # never more than the rollout
 
 
-def test_untrained_policy_keeps_the_home_posture(builtin_data: Config) -> None:
-    # The untrained policy's mean action: hand pose still, thumb opposed, fingers open; the
+def test_untrained_policy_mean_action(builtin_data: Config) -> None:
+    # init_action_mean = the home posture (hand pose still, thumb opposed, fingers open): the
     # env then holds the home hand targets (up to the 1 % weight of the observation).
     cfg = tiny_config(builtin_data.data_dir)
+    home = (0.0,) * 6 + (1.0, -1.0, -1.0, -1.0, -1.0)
+    cfg = dataclasses.replace(cfg, ppo=dataclasses.replace(cfg.ppo, init_action_mean=home))
     env = GraspEnv(cfg.env, seed=0)
     agent = Agent(cfg.env.representation, cfg.ppo)
     with set_exploration_type(ExplorationType.DETERMINISTIC):

@@ -24,6 +24,9 @@ from typing import Any
 
 from trainer.errors import TrainerError
 
+ACTION_DIM = 11
+"""6 hand-pose deltas, then 5 hand DoF targets (thumb rotation, thumb flexion, index, middle,
+ring + little), each in [-1, 1]."""
 REPRESENTATIONS = ("com", "sdf", "bbox", "sq", "pc32", "pc128", "pc512")
 REWARDS = ("sdf", "com", "none")
 ROBOTS = ("ur5e", "floating")
@@ -193,11 +196,11 @@ class PPOConfig:
     pointnet_hidden: tuple[int, ...] = (64, 128)
     """Shared per-point MLP of the point-cloud encoder (then max pooling)."""
     init_log_std: float = -0.5
-    init_action_mean: tuple[float, ...] = (0.0,) * 6 + (1.0, -1.0, -1.0, -1.0, -1.0)
-    """Mean action of the untrained policy (the output layer's bias): the hand pose holds still
-    and the hand keeps its home posture, thumb opposed and fingers open. A zero mean would
-    half-close every finger at the first step, so that exploration would start from a hand that
-    cannot open around an object."""
+    init_action_mean: tuple[float, ...] = (0.0,) * ACTION_DIM
+    """Mean action of the untrained policy (the output layer's bias). Zero (the usual choice)
+    puts every hand DoF mid-range at the first step; ``[0, 0, 0, 0, 0, 0, 1, -1, -1, -1, -1]``
+    keeps the home posture instead (thumb opposed, fingers open). Neither learned to lift on a
+    CPU budget so far (README, results/)."""
 
     def __post_init__(self) -> None:
         if self.lr_schedule not in ("adaptive", "fixed"):

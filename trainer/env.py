@@ -22,7 +22,7 @@ from torchrl.envs import EnvBase
 
 from trainer import constants as C
 from trainer.assets.scene import build_scene, home_hand_pose, ur5e_home_joints
-from trainer.config import EnvConfig
+from trainer.config import ACTION_DIM, EnvConfig
 from trainer.init_states import load_or_build_bank
 from trainer.kinematics import SiteKinematics, jacobian_transpose_step
 from trainer.objects import load_objects, resolve_names
@@ -30,7 +30,6 @@ from trainer.representations import object_representation, representation_shape
 from trainer.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix, rotation_6d
 from trainer.sim.cpu import MujocoCPUBackend
 
-ACTION_DIM = 11
 PROPRIO_DIM = 20
 
 

@@ -13,8 +13,8 @@ from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.modules import IndependentNormal, ProbabilisticActor
 
-from trainer.config import PPOConfig
-from trainer.env import ACTION_DIM, PROPRIO_DIM
+from trainer.config import ACTION_DIM, PPOConfig
+from trainer.env import PROPRIO_DIM
 from trainer.representations import representation_shape
 
 
