@@ -180,3 +180,18 @@ def test_compiled_env_matches_eager(builtin_data: Config) -> None:
             torch.testing.assert_close(b[key], a[key], atol=1e-3, rtol=1e-3)
         torch.testing.assert_close(b["reward"], a["reward"], atol=1e-2, rtol=1e-3)
         assert torch.equal(b["done"], a["done"])
+
+
+def test_compile_failure_falls_back_to_eager(builtin_data: Config, monkeypatch) -> None:  # noqa: ANN001
+    # A machine without a working C++ compiler: the env warns once per function and runs eagerly.
+    import torch._inductor.config as inductor
+
+    monkeypatch.setattr(inductor.cpp, "cxx", ("/nonexistent-c++",))
+    monkeypatch.setattr(inductor, "fx_graph_cache", False)
+    cfg = load_env_config(num_envs=3, objects="builtin_box", representation="com",
+                          data_dir=builtin_data.data_dir)
+    environment = GraspEnv(dataclasses.replace(cfg, compile=True))
+    with pytest.warns(UserWarning, match="torch.compile failed"):
+        rollout = environment.rollout(2)
+    assert torch.isfinite(rollout["next", "reward"]).all()
+    environment.close()

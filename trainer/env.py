@@ -14,6 +14,8 @@ Output keys (batch E):
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -31,6 +33,27 @@ from trainer.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_matr
 from trainer.sim.cpu import MujocoCPUBackend
 
 PROPRIO_DIM = 20
+
+
+def _compiled_or_eager(function):  # noqa: ANN001, ANN202
+    """``torch.compile(function)``, or ``function`` itself (with one warning) if compiling fails,
+    e.g. on a machine without a C++ compiler or Python headers: slower, never broken."""
+    compiled = torch.compile(function, dynamic=False)
+    state = {"use": compiled}
+
+    def call(*args):  # noqa: ANN002, ANN202
+        try:
+            return state["use"](*args)
+        except torch._dynamo.exc.BackendCompilerFailed as err:
+            warnings.warn(
+                f"torch.compile failed ({str(err).splitlines()[0][:200]}); the env runs eagerly "
+                "(install g++ and the Python headers, or pass --no-compile)",
+                stacklevel=2,
+            )
+            state["use"] = function
+            return function(*args)
+
+    return call
 
 
 class GraspEnv(EnvBase):
@@ -89,8 +112,8 @@ class GraspEnv(EnvBase):
             # representation, env count, robot) is one more specialization of the same code, and
             # past torch's default limit of 8 it would silently fall back to eager.
             torch._dynamo.config.recompile_limit = max(torch._dynamo.config.recompile_limit, 64)
-            self._task_outputs = torch.compile(self._task_outputs_eager, dynamic=False)
-            self._commands = torch.compile(self._commands_eager, dynamic=False)
+            self._task_outputs = _compiled_or_eager(self._task_outputs_eager)
+            self._commands = _compiled_or_eager(self._commands_eager)
         self._make_specs()
 
     # --- setup ------------------------------------------------------------------------------
