@@ -11,7 +11,7 @@ import click
 
 from geomprep import builtin, fetch, pipeline
 from geomprep.config import Config, load_config
-from geomprep.errors import GeomprepError
+from geomprep.errors import GeomprepError, run_cli
 
 STAGE_HELP = {
     "mesh": "Load, clean, check units, centre at the centre of mass, attach the mass.",
@@ -235,17 +235,7 @@ def show(obj: Context, name: str, out: Path | None) -> None:
 
 def main() -> None:
     """Entry point: run the CLI, turning GeomprepError into a one-line message and exit 1."""
-    try:
-        cli.main(standalone_mode=False)
-    except GeomprepError as exc:
-        click.echo(f"error: {exc}", err=True)
-        sys.exit(1)
-    except click.exceptions.Abort:
-        click.echo("aborted", err=True)
-        sys.exit(130)
-    except click.ClickException as exc:
-        exc.show()
-        sys.exit(exc.exit_code)
+    run_cli(cli, (GeomprepError,))
 
 
 if __name__ == "__main__":

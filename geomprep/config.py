@@ -174,18 +174,24 @@ def _section(cls: type, values: dict[str, Any], where: str) -> Any:
     return cls(**converted)
 
 
+def read_toml(path: Path, error: type[Exception] = GeomprepError) -> dict[str, Any]:
+    """The TOML file at ``path`` as a dict; a missing or malformed file raises ``error`` with a
+    one-line message (the trainer passes its own error type)."""
+    try:
+        return tomllib.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise error(f"config file not found: {path}: check the --config path") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise error(f"config file {path} is not valid TOML: {exc}") from None
+
+
 def load_config(path: Path | None = None, data_dir: Path | None = None) -> Config:
     """Defaults, overridden by the TOML file at ``path`` (or ./geomprep.toml if it exists)."""
     values: dict[str, Any] = {}
     if path is None and Path(DEFAULT_CONFIG_NAME).is_file():
         path = Path(DEFAULT_CONFIG_NAME)
     if path is not None:
-        try:
-            values = tomllib.loads(Path(path).read_text())
-        except FileNotFoundError:
-            raise GeomprepError(f"config file not found: {path}: check the --config path") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise GeomprepError(f"config file {path} is not valid TOML: {exc}") from None
+        values = read_toml(path)
     sections = {f.name: f for f in dataclasses.fields(Config)}
     kwargs: dict[str, Any] = {}
     for key, value in values.items():

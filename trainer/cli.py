@@ -8,11 +8,11 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import dataclasses  # noqa: E402
-import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import click  # noqa: E402
 
+from geomprep.errors import run_cli  # noqa: E402
 from trainer.config import (  # noqa: E402
     REPRESENTATIONS,
     REWARDS,
@@ -231,17 +231,7 @@ def play(run_dir: Path, object_name: str, video: Path, episodes: int, seed: int)
 
 def main() -> None:
     """Entry point: TrainerError becomes a one-line message and exit status 1."""
-    try:
-        cli.main(standalone_mode=False)
-    except TrainerError as exc:
-        click.echo(f"error: {exc}", err=True)
-        sys.exit(1)
-    except click.exceptions.Abort:
-        click.echo("aborted", err=True)
-        sys.exit(130)
-    except click.ClickException as exc:
-        exc.show()
-        sys.exit(exc.exit_code)
+    run_cli(cli, (TrainerError,))
 
 
 if __name__ == "__main__":

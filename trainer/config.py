@@ -17,11 +17,11 @@ fighting its own weight), and hand position servos stronger than the real SIH's 
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from geomprep.config import read_toml
 from trainer.errors import TrainerError
 
 ACTION_DIM = 11
@@ -251,14 +251,7 @@ def _build(cls: type, values: dict[str, Any], where: str) -> Any:
 
 
 def _read_toml(path: Path | None) -> dict[str, Any]:
-    if path is None:
-        return {}
-    try:
-        return tomllib.loads(Path(path).read_text())
-    except FileNotFoundError:
-        raise TrainerError(f"config file not found: {path}: check the --config path") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise TrainerError(f"config file {path} is not valid TOML: {exc}") from None
+    return {} if path is None else read_toml(path, TrainerError)
 
 
 def _env_config(values: dict[str, Any], where: str, overrides: dict[str, Any]) -> EnvConfig:

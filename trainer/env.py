@@ -38,19 +38,19 @@ PROPRIO_DIM = 20
 def _compiled_or_eager(function):  # noqa: ANN001, ANN202
     """``torch.compile(function)``, or ``function`` itself (with one warning) if compiling fails,
     e.g. on a machine without a C++ compiler or Python headers: slower, never broken."""
-    compiled = torch.compile(function, dynamic=False)
-    state = {"use": compiled}
+    current = torch.compile(function, dynamic=False)
 
     def call(*args):  # noqa: ANN002, ANN202
+        nonlocal current
         try:
-            return state["use"](*args)
+            return current(*args)
         except torch._dynamo.exc.BackendCompilerFailed as err:
             warnings.warn(
                 f"torch.compile failed ({str(err).splitlines()[0][:200]}); the env runs eagerly "
                 "(install g++ and the Python headers, or pass --no-compile)",
                 stacklevel=2,
             )
-            state["use"] = function
+            current = function
             return function(*args)
 
     return call
@@ -413,12 +413,11 @@ class GraspEnv(EnvBase):
     def _get_termination(
         self, lift: torch.Tensor, obj_pos: torch.Tensor, step_count: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(success, terminated, truncated), each (E,) bool; a blown-up simulation (non-finite
-        object position) truncates."""
+        """(success, terminated, truncated), each (E,) bool. A blown-up simulation also
+        truncates; ``_observe`` adds that from the backend's ``unstable``."""
         success = lift >= self.cfg.reward.h_bar
         fell = obj_pos[:, 2] < self.cfg.fall_height
-        truncated = (step_count >= self.cfg.max_steps) | ~torch.isfinite(obj_pos).all(-1)
-        return success, success | fell, truncated
+        return success, success | fell, step_count >= self.cfg.max_steps
 
     def close(self, *, raise_if_closed: bool = True) -> None:  # noqa: D102
         self.backend.close()

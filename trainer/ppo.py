@@ -166,6 +166,7 @@ def train(
             losses: dict[str, list[float]] = {k: [] for k in LOSS_KEYS}
             for _ in range(ppo.epochs):
                 order = torch.randperm(flat.shape[0], generator=shuffle)
+                epoch_kl: list[float] = []
                 for index in order.split(minibatch):
                     out = loss_module(flat[index])
                     loss = out["loss_objective"] + out["loss_critic"]
@@ -178,8 +179,8 @@ def train(
                     for key in LOSS_KEYS:
                         if key in out:
                             losses[key].append(float(out[key].detach().mean()))
+                    epoch_kl.append(losses["kl_approx"][-1])
                 if ppo.lr_schedule == "adaptive":
-                    epoch_kl = losses["kl_approx"][-math.ceil(len(order) / minibatch) :]
                     _adapt_lr(optimizer, sum(epoch_kl) / len(epoch_kl), ppo)
             agent.obs_norm.update(data["proprio"], data["object"])
 

@@ -1,0 +1,30 @@
+"""Both command lines turn a user error into one ``error: ...`` line and exit status 1."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+import geomprep.cli
+import trainer.cli
+
+
+@pytest.mark.parametrize(
+    "main, argv",
+    [
+        (geomprep.cli.main, ["geomprep", "--config", "{bad}", "list"]),
+        (trainer.cli.main, ["trainer", "run", "--config", "{bad}", "--no-compile"]),
+    ],
+)
+def test_bad_config_is_one_line_error(main, argv, tmp_path: Path, monkeypatch, capsys) -> None:  # noqa: ANN001
+    bad = tmp_path / "bad.toml"
+    bad.write_text("num_envs = [")
+    monkeypatch.setattr(sys, "argv", [a.replace("{bad}", str(bad)) for a in argv])
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    assert exit_info.value.code == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"error: config file {bad} is not valid TOML")
+    assert "\n" not in err
