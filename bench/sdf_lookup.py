@@ -2,14 +2,15 @@
 
 Usage: python bench/sdf_lookup.py [--envs 16384] [--points 5] [--objects 78] [--resolution 200]
                                   [--repeats 50] [--data-dir data/processed] [--threads N]
-                                  [--spread surface|near|cube]
+                                  [--spread surface|near|cube] [--no-compile]
 
 Times ``SDFLookup.query`` for E envs x K fingertips (world points, random object poses and ids),
-on the CPU and, if available, CUDA, in float32 and float16 storage: milliseconds per query, the
-median (and the 10th and 90th percentiles) of --repeats calls after warm-up.  Baselines in the
-same run, on the same points: a naive lookup that gathers the 8 corners with 8 separate 4-D
-fancy-index reads, and scipy's RegularGridInterpolator called once per object (its grids are
-numpy, so a loop over objects).
+on the CPU and, if available, CUDA, in float32 and float16 storage, eager and under
+``torch.compile`` (as the trainer's env calls it): milliseconds per query, the median (and the
+10th and 90th percentiles) of --repeats calls after warm-up.  Baselines in the same run, on the
+same points, on a plain dense (N, R, R, R) stack: a naive lookup that gathers the 8 corners with
+8 separate 4-D fancy-index reads, and scipy's RegularGridInterpolator called once per object
+(its grids are numpy, so a loop over objects).
 Prints the paper's figure (0.31 ms, RTX A6000), the targets and the memory of the resident grid
 stacks (``SDFLookup.nbytes``).
 
@@ -23,7 +24,7 @@ import argparse
 import statistics
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -40,18 +41,13 @@ TARGET_CPU_MS = 3.0
 TARGET_GPU_MS = 0.1
 
 
-def synthetic_grids(n_obj: int, resolution: int, extent: float = 0.5) -> np.ndarray:
-    """(N, R, R, R) float32 signed distance to spheres of radius 3-10 cm at the origin.
-
-    Written into ``empty_grids`` memory (huge pages on Linux), as ``SDFLookup.from_hdf5`` does,
-    so the lookup built on it uses it in place.
-    """
+def synthetic_grids(n_obj: int, resolution: int, extent: float = 0.5) -> Iterator[np.ndarray]:
+    """N grids (R, R, R) float32, one at a time: signed distance to spheres of radius 3-10 cm
+    at the origin."""
     c = voxel_centers(resolution, extent).astype(np.float32)
     r = np.sqrt(c[:, None, None] ** 2 + c[None, :, None] ** 2 + c[None, None, :] ** 2)
-    grids = empty_grids((n_obj, resolution, resolution, resolution)).numpy()
-    for n, radius in enumerate(np.linspace(0.03, 0.10, n_obj)):
-        np.subtract(r, radius, out=grids[n])
-    return grids
+    for radius in np.linspace(0.03, 0.10, n_obj):
+        yield r - np.float32(radius)
 
 
 SPREADS = ("surface", "near", "cube")
@@ -85,7 +81,7 @@ def make_queries(
             rows = (ids == n).nonzero().flatten()
             if len(rows) == 0:
                 continue
-            shell = (lookup.grids[n].abs() < 0.02).nonzero().float()
+            shell = (lookup.grid(n).abs() < 0.02).nonzero().float()
             pick = shell[torch.randint(0, len(shell), (len(rows) * n_points,), generator=gen)]
             pick += torch.rand(pick.shape, generator=gen) - 0.5
             centre = lookup.bounds_min[n] + (pick + 0.5) * voxel[n]
@@ -106,12 +102,15 @@ def make_queries(
     return world, pos, quat, ids, local
 
 
-def naive_gather(lookup: SDFLookup, local: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
-    """The straightforward version: 8 separate [id, i, j, k] reads, no clamping rule subtleties.
+def naive_gather(
+    grids: torch.Tensor, lookup: SDFLookup, local: torch.Tensor, ids: torch.Tensor
+) -> torch.Tensor:
+    """The straightforward version: 8 separate [id, i, j, k] reads of a dense (N, R, R, R)
+    stack, no clamping rule subtleties.
 
     local: (E, K, 3) object-frame points, metres; returns (E, K) float32.
     """
-    r = lookup.resolution
+    r = grids.shape[1]
     u = (local - lookup.bounds_min[ids][:, None]) * lookup.inv_voxel[ids][:, None, None] - 0.5
     u = u.clamp(0.0, r - 1.0)
     base = u.floor().clamp(max=r - 2.0)
@@ -127,7 +126,7 @@ def naive_gather(lookup: SDFLookup, local: torch.Tensor, ids: torch.Tensor) -> t
                     * (t[..., 1] if dj else 1 - t[..., 1])
                     * (t[..., 2] if dk else 1 - t[..., 2])
                 )
-                out += w * lookup.grids[n, i + di, j + dj, k + dk].float()
+                out += w * grids[n, i + di, j + dj, k + dk].float()
     return out
 
 
@@ -170,6 +169,12 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=50)
     parser.add_argument("--data-dir", type=Path, default=None, help="use data/processed/*.h5")
     parser.add_argument(
+        "--compile",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="also time the query under torch.compile, as the trainer's env runs it",
+    )
+    parser.add_argument(
         "--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)"
     )
     parser.add_argument(
@@ -192,18 +197,21 @@ def main() -> None:
 
     if args.data_dir is not None:
         paths = sorted(args.data_dir.glob("*.h5"))[:n_obj]
-        lookup32 = SDFLookup.from_hdf5(paths)
         n_obj = len(paths)
+
+        def build(dtype: torch.dtype) -> SDFLookup:
+            return SDFLookup.from_hdf5(paths, dtype=dtype)
     else:
-        grids = synthetic_grids(n_obj, r)
-        lookup32 = SDFLookup(grids, np.full((n_obj, 3), -0.5), np.full(n_obj, 1.0 / r))
-        del grids
-    lookup16 = SDFLookup(
-        lookup32.grids, lookup32.bounds_min, 1.0 / lookup32.inv_voxel, dtype=torch.float16
-    )
+
+        def build(dtype: torch.dtype) -> SDFLookup:
+            bounds, voxel = np.full((n_obj, 3), -0.5), np.full(n_obj, 1.0 / r)
+            return SDFLookup(synthetic_grids(n_obj, r), bounds, voxel, dtype=dtype)
+
+    lookups = {"float32": build(torch.float32), "float16": build(torch.float16)}
+    lookup32 = lookups["float32"]
     print(
-        f"grid memory resident, {n_obj} objects at {lookup32.resolution}^3: "
-        f"float32 {lookup32.nbytes() / 1e9:.2f} GB, float16 {lookup16.nbytes() / 1e9:.2f} GB"
+        f"grid memory resident (bricks), {n_obj} objects at {lookup32.resolution}^3: "
+        + ", ".join(f"{k} {lk.nbytes() / 1e9:.2f} GB" for k, lk in lookups.items())
     )
     world, pos, quat, ids, local = make_queries(
         args.envs, args.points, n_obj, spread=args.spread, lookup=lookup32
@@ -215,37 +223,48 @@ def main() -> None:
         for device in devices:
             sync = torch.cuda.synchronize if device == "cuda" else (lambda: None)
             q = [x.to(device) for x in (world, pos, quat, ids)]
-            times = {}
-            for label, lookup in (("float32", lookup32), ("float16", lookup16)):
-                lk = lookup.to(device)
-                times[label] = times_ms(lambda lk=lk, q=q: lk.query(*q), args.repeats, sync)
-                lookup.to("cpu")  # Module.to moves in place; the baselines below run on CPU
             target = TARGET_CPU_MS if device == "cpu" else TARGET_GPU_MS
-            for label, ts in times.items():
-                # The spread says how much a shared machine disturbed the run.
-                p10, p90 = ts[len(ts) // 10], ts[(len(ts) * 9) // 10]
-                print(
-                    f"{device:<5} SDFLookup.query {label}: {statistics.median(ts):8.3f} ms "
-                    f"(p10 {p10:.3f}, p90 {p90:.3f})   (target <= {target} ms)"
-                )
+            for label, lookup in lookups.items():
+                lk = lookup.to(device)
+                # The trainer's env calls the lookup inside its torch.compile'd step.
+                compiled = compile_query(lk) if args.compile else None
+                for mode, fn in (("eager", lk.query), ("compiled", compiled)):
+                    if fn is None:
+                        continue
+                    ts = times_ms(lambda fn=fn, q=q: fn(*q), args.repeats, sync)
+                    # The spread says how much a shared machine disturbed the run.
+                    p10, p90 = ts[len(ts) // 10], ts[(len(ts) * 9) // 10]
+                    print(
+                        f"{device:<5} SDFLookup.query {label} {mode:<8}: "
+                        f"{statistics.median(ts):8.3f} ms (p10 {p10:.3f}, p90 {p90:.3f})   "
+                        f"(target <= {target} ms)"
+                    )
+                lookup.to("cpu")  # Module.to moves in place; the baselines below run on CPU
 
+        # Baselines on a plain dense (N, R, R, R) float32 stack of the same grids.
+        dense = empty_grids((n_obj, r, r, r))
+        for n in range(n_obj):
+            dense[n] = lookup32.grid(n)
         local_cpu = torch.bmm(world - pos[:, None], quat_to_matrix(quat))
         naive_ms = median_ms(
-            lambda: naive_gather(lookup32, local_cpu, ids), max(5, args.repeats // 5), lambda: None
+            lambda: naive_gather(dense, lookup32, local_cpu, ids),
+            max(5, args.repeats // 5),
+            lambda: None,
         )
         fast_ms = median_ms(
             lambda: lookup32.query_local(local_cpu, ids), args.repeats, lambda: None
         )
         err = float(
-            (naive_gather(lookup32, local_cpu, ids) - lookup32.query_local(local_cpu, ids))
+            (naive_gather(dense, lookup32, local_cpu, ids) - lookup32.query_local(local_cpu, ids))
             .abs()
             .max()
         )
         print(
-            f"cpu   baseline naive 8-gather (object frame): {naive_ms:8.3f} ms; ours (object "
-            f"frame) {fast_ms:.3f} ms; ratio {naive_ms / fast_ms:.1f}x; max diff {err:.1e} m"
+            f"cpu   baseline naive 8-gather, dense float32 (object frame): {naive_ms:8.3f} ms; "
+            f"ours, float32 bricks (object frame) {fast_ms:.3f} ms; ratio "
+            f"{naive_ms / fast_ms:.1f}x; max diff {err:.1e} m"
         )
-        grids_np = lookup32.grids.numpy()
+        grids_np = dense.numpy()
         c = voxel_centers(r)
         interps = [
             RegularGridInterpolator((c, c, c), grids_np[n], bounds_error=False, fill_value=None)
@@ -260,6 +279,17 @@ def main() -> None:
             f"cpu   baseline scipy RegularGridInterpolator per object: {scipy_ms:8.3f} ms; "
             f"ratio {scipy_ms / fast_ms:.1f}x; max diff {diff:.1e} m"
         )
+
+
+def compile_query(lookup: SDFLookup) -> Callable | None:
+    """``torch.compile(lookup.query)``, or None (with a note) where it cannot compile."""
+    fn = torch.compile(lookup.query, dynamic=False)
+    try:
+        fn(*(x[:1] for x in make_queries(1, 1, 1)[:4]))
+    except Exception as err:  # noqa: BLE001 (any compiler failure: report and go on)
+        print(f"torch.compile unavailable ({str(err).splitlines()[0][:120]}): eager only")
+        return None
+    return fn
 
 
 if __name__ == "__main__":

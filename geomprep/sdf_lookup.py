@@ -1,6 +1,6 @@
 """Batched signed-distance lookup in the objects' SDF grids, on the training device (torch).
 
-All objects' grids are stacked into one (N_obj, R, R, R) tensor, so a query for E environments,
+All objects' grids are stacked into one tensor (of bricks, below), so a query for E environments,
 each holding one object at its own pose, is a handful of tensor operations with no Python loop
 over environments:
 
@@ -19,12 +19,19 @@ Conventions (the data contract of README.md):
   clamped to the grid, the rule of Mosbach & Behnke 2022); this under-estimates the distance
   there, which is harmless for fingertips half a metre from the object.
 
-Storage: ``dtype=torch.float16`` halves the memory (78 objects at 200^3: 2.50 GB float32,
-1.25 GB float16).  Rounding to float16's 11-bit significand changes a stored value d by at most
-``|d| * 2**-11`` (below float16's smallest normal, 6.1e-5 m, by at most 2**-25 m), and
-interpolation is a convex combination, so a query moves by at most ``2**-11`` times the largest
-of its 8 corner magnitudes: <= 10 um within 2 cm of the surface, <= 0.43 mm at the grid's far
-corners (0.87 m).  Arithmetic is float32 either way.
+Storage: bricks.  Each grid is cut into cubes of 4 x 4 x 4 cells, and each brick stores the
+5 x 5 x 5 voxel centres at its cells' corners (the shared faces are stored twice), padded to 128
+values.  The 8 corners of any cell then lie in one brick, 31 values apart at most: one or two
+adjacent cache lines per query in float16, where a plain (R, R, R) array puts them on 4 lines
+up to R^2 values apart.  The gathers into GB-sized stacks are what a query costs on a CPU
+(16,384 x 5 fingertips in 78 grids of 200^3: 3.5 ms for the dense float32 gather, 1.2 ms for the
+float16 bricks).  The bricks hold 128 / 64 = 2x the values of the dense grid, so 78 objects at
+200^3 take 2.56 GB in float16 (the trainer's default) and 5.12 GB in float32.
+
+float16 rounds a stored value d by at most ``|d| * 2**-11`` (below float16's smallest normal,
+6.1e-5 m, by at most 2**-25 m), and interpolation is a convex combination, so a query moves by
+at most ``2**-11`` times the largest of its 8 corner magnitudes: <= 10 um within 2 cm of the
+surface, <= 0.43 mm at the grid's far corners (0.87 m).  Arithmetic is float32 either way.
 """
 
 from __future__ import annotations
@@ -32,7 +39,7 @@ from __future__ import annotations
 import ctypes
 import mmap
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import h5py
@@ -43,6 +50,42 @@ from geomprep.errors import GeomprepError
 
 # Relative rounding error of float16 storage (half an ulp of an 11-bit significand).
 FLOAT16_RELATIVE_ERROR = 2.0**-11
+
+# Up to this many points per query, compiled code (the trainer's env under torch.compile) takes
+# the plain path, which the compiler fuses with the surrounding step; above it, the eager path
+# (its block-ordered gather; the compiled plain path gathers the 8 corners point by point and,
+# at 16,384 x 5 points in 78 grids, takes ~2x the eager time).
+_COMPILED_MAX_POINTS = 16384
+
+BRICK_CELLS = 4
+"""Cells along each edge of a brick; a brick stores (BRICK_CELLS + 1)^3 voxel centres."""
+BRICK_VALUES = 128
+"""Values per brick: 5^3 = 125 centres, padded so that bricks start on cache lines."""
+# Offsets of a centre (i, j, k) of a brick (each in 0..4) within it: i * 25 + j * 5 + k.
+_BRICK_STRIDES = ((BRICK_CELLS + 1) ** 2, BRICK_CELLS + 1, 1)
+
+
+def bricks_per_axis(resolution: int) -> int:
+    """Bricks along each axis of an R^3 grid: its R - 1 cells in bricks of BRICK_CELLS."""
+    return -(-(resolution - 1) // BRICK_CELLS)
+
+
+def to_bricks(grid: torch.Tensor) -> torch.Tensor:
+    """(B, B, B, BRICK_VALUES) bricks of one (R, R, R) grid, B = ``bricks_per_axis(R)``.
+
+    Brick (a, b, c) holds centres 4a..4a+4 x 4b..4b+4 x 4c..4c+4 at ``i * 25 + j * 5 + k``;
+    centres past the grid's last one (when R - 1 is not a multiple of 4) repeat the edge value,
+    and no cell inside the grid uses them.  The 3 padding values are zero.
+    """
+    r = grid.shape[0]
+    b = bricks_per_axis(r)
+    pad = BRICK_CELLS * b + 1 - r
+    padded = torch.nn.functional.pad(grid[None, None], (0, pad) * 3, mode="replicate")[0, 0]
+    n = BRICK_CELLS + 1
+    cubes = padded.unfold(0, n, BRICK_CELLS).unfold(1, n, BRICK_CELLS).unfold(2, n, BRICK_CELLS)
+    out = grid.new_zeros(b, b, b, BRICK_VALUES)
+    out[..., : n**3] = cubes.reshape(b, b, b, n**3)
+    return out
 
 
 def quat_to_matrix(quat: torch.Tensor) -> torch.Tensor:
@@ -75,14 +118,14 @@ _MADV_HUGEPAGE = 14
 def empty_grids(
     shape: Sequence[int], dtype: torch.dtype = torch.float32, device: str | torch.device = "cpu"
 ) -> torch.Tensor:
-    """Uninitialised grid stack, on Linux CPU backed by 2 MiB transparent huge pages.
+    """Uninitialised tensor, on Linux CPU backed by 2 MiB transparent huge pages.
 
-    A query's reads land all over the GB-sized stack; with 4 KiB pages nearly every one also
-    misses the TLB (the 8 x 81,920 corner reads of 16,384 x 5 points in 78 grids of 200^3, on a
-    2-core EPYC: 6.0 ms with 4 KiB pages, 3.2 ms with huge pages).  The pages are requested with
-    madvise(MADV_HUGEPAGE) before anything is written to them (in the kernel's usual THP mode,
-    ``madvise``, memory gets none otherwise); elsewhere this is ``torch.empty``.  SDFLookup and
-    from_hdf5 use it; pass such a stack to SDFLookup to have it used in place, without a copy.
+    A query's reads land all over the GB-sized grid stack; with 4 KiB pages nearly every one
+    also misses the TLB (the 8 x 81,920 corner reads of 16,384 x 5 points in 78 dense grids of
+    200^3, on a 2-core EPYC: 6.0 ms with 4 KiB pages, 3.2 ms with huge pages).  The pages are
+    requested with madvise(MADV_HUGEPAGE) before anything is written to them (in the kernel's
+    usual THP mode, ``madvise``, memory gets none otherwise); elsewhere this is ``torch.empty``.
+    SDFLookup allocates its brick stack with it.
     """
     grids = torch.empty(tuple(shape), dtype=dtype, device=device)
     if grids.device.type == "cpu" and sys.platform == "linux":
@@ -105,68 +148,85 @@ def _advise_huge_pages(tensor: torch.Tensor) -> None:
 
 
 class SDFLookup(torch.nn.Module):
-    """Stacked SDF grids of N objects with a batched, pose-aware trilinear query.
+    """SDF grids of N objects, stored as bricks, with a batched, pose-aware trilinear query.
 
     Buffers (moved by ``.to(device)`` like any module state):
-    - ``grids``: (N, R, R, R) float32 or float16, metres, negative inside.
+    - ``bricks``: (N, B, B, B, 128) float32 or float16, metres, negative inside (see the module
+      docstring; ``grid(n)`` gives object n's dense (R, R, R) grid back).
     - ``bounds_min``: (N, 3) float32, metres, each grid cube's lower corner (object frame).
     - ``inv_voxel``: (N,) float32, 1 / voxel size, 1/metres; ``shift``: (N, 3) float32,
       ``-bounds_min / voxel - 0.5``, so ``p * inv_voxel + shift`` is p in voxel-centre units.
     """
 
-    grids: torch.Tensor
+    bricks: torch.Tensor
     bounds_min: torch.Tensor
     inv_voxel: torch.Tensor
     shift: torch.Tensor
     corner_offsets: torch.Tensor
 
-    # Points per block of the corner gather (see _interpolate): 128 points' 8 corners touch
-    # ~540 cache lines (34 KiB), which stay in L1/L2 while the block is gathered.
+    # Points per block of the corner gather (see _interpolate): a block's corner reads stay in
+    # L1/L2 while the block is gathered and interpolated.
     _BLOCK = 128
 
     def __init__(
         self,
-        grids: torch.Tensor | np.ndarray,
+        grids: Iterable[torch.Tensor | np.ndarray],
         bounds_min: torch.Tensor | np.ndarray,
         voxel_size: torch.Tensor | np.ndarray | Sequence[float],
         dtype: torch.dtype = torch.float32,
         names: Sequence[str] | None = None,
+        device: str | torch.device = "cpu",
     ) -> None:
-        """grids: (N, R, R, R) metres; bounds_min: (N, 3) metres; voxel_size: (N,) metres.
+        """grids: the N objects' (R, R, R) grids, metres (an (N, R, R, R) array or any iterable
+        of grids: they are bricked one at a time, so a generator keeps one dense grid in
+        memory); bounds_min: (N, 3) metres; voxel_size: (N,) metres.
 
-        dtype: storage type of the grids, torch.float32 or torch.float16 (see module docstring).
+        dtype: storage type, torch.float32 or torch.float16 (see module docstring).
         names: optional object names, ``names[i]`` being object id i.
         """
         super().__init__()
         if dtype not in (torch.float32, torch.float16):
             raise GeomprepError(f"SDF lookup dtype {dtype}: use torch.float32 or torch.float16")
-        grids = torch.as_tensor(grids)
-        if grids.ndim != 4 or not grids.shape[1] == grids.shape[2] == grids.shape[3]:
-            raise GeomprepError(f"SDF grids have shape {tuple(grids.shape)}: need (N, R, R, R)")
-        n_obj, resolution = grids.shape[0], grids.shape[1]
-        if resolution < 2:
-            raise GeomprepError("SDF grids need at least 2 voxels per axis to interpolate")
-        bounds = torch.as_tensor(np.asarray(bounds_min, dtype=np.float32)).reshape(n_obj, 3)
+        bounds = torch.as_tensor(np.asarray(bounds_min, dtype=np.float32)).reshape(-1, 3)
+        n_obj = bounds.shape[0]
         voxel = torch.as_tensor(np.asarray(voxel_size, dtype=np.float32)).reshape(n_obj)
-        self.resolution = int(resolution)
         self.names = list(names) if names is not None else [str(i) for i in range(n_obj)]
-        if grids.device.type == "cpu" and not (grids.dtype == dtype and grids.is_contiguous()):
-            # A fresh stack in huge pages (see empty_grids) rather than .to(dtype).
-            grids = empty_grids(grids.shape, dtype).copy_(grids)
-        elif grids.device.type == "cpu":
-            # Already stored as needed (maybe the caller's memory, e.g. from empty_grids or
-            # from_hdf5): used in place; the kernel may still collapse it into huge pages.
-            _advise_huge_pages(grids)
-        self.register_buffer("grids", grids.to(dtype).contiguous())
-        self.register_buffer("bounds_min", bounds.clone())
-        self.register_buffer("inv_voxel", 1.0 / voxel)
+        bricks: torch.Tensor | None = None
+        count = 0
+        for n, grid in enumerate(grids):
+            grid = torch.as_tensor(grid)
+            if grid.ndim != 3 or not grid.shape[0] == grid.shape[1] == grid.shape[2]:
+                raise GeomprepError(
+                    f"SDF grid {n} has shape {tuple(grid.shape)}: need (R, R, R)"
+                )
+            if grid.shape[0] < 2:
+                raise GeomprepError("SDF grids need at least 2 voxels per axis to interpolate")
+            if bricks is None:
+                self.resolution = int(grid.shape[0])
+                b = bricks_per_axis(self.resolution)
+                bricks = empty_grids((n_obj, b, b, b, BRICK_VALUES), dtype, device)
+            elif grid.shape[0] != self.resolution:
+                raise GeomprepError(
+                    f"SDF grid {n} is {tuple(grid.shape)} but grid 0 is {(self.resolution,) * 3}:"
+                    " build all objects at one SDF resolution"
+                )
+            if n >= n_obj:
+                raise GeomprepError(f"more SDF grids than bounds ({n_obj})")
+            bricks[n] = to_bricks(grid.to(dtype=torch.float32)).to(device=device, dtype=dtype)
+            count = n + 1
+        if bricks is None or count != n_obj:
+            raise GeomprepError(f"{count} SDF grids for {n_obj} bounds: pass one grid per object")
+        self.bricks_per_axis = bricks.shape[1]
+        self.register_buffer("bricks", bricks)
+        self.register_buffer("bounds_min", bounds.clone().to(device))
+        self.register_buffer("inv_voxel", (1.0 / voxel).to(device))
         # u = p / voxel + shift puts voxel i's centre at u = i.
-        self.register_buffer("shift", -bounds / voxel[:, None] - 0.5)
-        r = self.resolution
-        # Flat-index steps to the 8 cell corners, dk slowest and di fastest, the order in which
-        # the lerps in _interpolate consume them (z first, over contiguous halves).
-        steps = [di * r * r + dj * r + dk for dk in (0, 1) for dj in (0, 1) for di in (0, 1)]
-        self.register_buffer("corner_offsets", torch.tensor(steps, dtype=torch.long))
+        self.register_buffer("shift", (-bounds / voxel[:, None] - 0.5).to(device))
+        # Steps within a brick to the 8 cell corners, dk slowest and di fastest, the order in
+        # which the lerps in _interpolate consume them (z first, over contiguous halves).
+        si, sj, sk = _BRICK_STRIDES
+        steps = [di * si + dj * sj + dk * sk for dk in (0, 1) for dj in (0, 1) for di in (0, 1)]
+        self.register_buffer("corner_offsets", torch.tensor(steps, dtype=torch.long, device=device))
 
     @classmethod
     def from_hdf5(
@@ -178,40 +238,57 @@ class SDFLookup(torch.nn.Module):
         """Load ``sdf/grid`` and its attrs from processed object files, object id = list index.
 
         paths: ``data/processed/<name>.h5`` files (or stage files with an ``sdf`` group); all
-        grids must have the same resolution.  Grids are converted one at a time into the
+        grids must have the same resolution.  Grids are read and bricked one at a time into the
         preallocated stack on ``device``, so peak host memory is one grid, not all of them.
         """
         if not paths:
             raise GeomprepError("no SDF files given: pass at least one processed .h5 file")
-        grids: torch.Tensor | None = None
-        bounds, voxels = [], []
-        for n, path in enumerate(paths):
+
+        def read(path: str | Path, what: str):  # noqa: ANN202
             try:
                 with h5py.File(path, "r") as f:
                     group = f["sdf"]
-                    grid = np.asarray(group["grid"][()], dtype=np.float32)
-                    bounds.append(np.asarray(group.attrs["bounds_min"], dtype=np.float32))
-                    voxels.append(float(group.attrs["voxel_size"]))
+                    if what == "grid":
+                        return np.asarray(group["grid"][()], dtype=np.float32)
+                    return (
+                        np.asarray(group.attrs["bounds_min"], dtype=np.float32),
+                        float(group.attrs["voxel_size"]),
+                    )
             except (OSError, KeyError) as err:
                 raise GeomprepError(
                     f"cannot read an SDF grid from {path} ({err}): build it with `geomprep sdf`"
                 ) from err
-            if grids is None:
-                grids = empty_grids((len(paths), *grid.shape), dtype, device)
-            elif grid.shape != tuple(grids.shape[1:]):
-                raise GeomprepError(
-                    f"{path} holds a {grid.shape} grid but the first file a "
-                    f"{tuple(grids.shape[1:])} one: build all objects at one SDF resolution"
-                )
-            grids[n] = torch.from_numpy(grid).to(device=device, dtype=dtype)
-        assert grids is not None
-        names = [Path(p).stem for p in paths]
-        lookup = cls(grids, np.stack(bounds), np.array(voxels), dtype=dtype, names=names)
-        return lookup.to(device)
+
+        attrs = [read(p, "attrs") for p in paths]
+        return cls(
+            (read(p, "grid") for p in paths),
+            np.stack([a[0] for a in attrs]),
+            np.array([a[1] for a in attrs]),
+            dtype=dtype,
+            names=[Path(p).stem for p in paths],
+            device=device,
+        )
+
+    @property
+    def dtype(self) -> torch.dtype:
+        """Storage type of the grids."""
+        return self.bricks.dtype
 
     def nbytes(self) -> int:
-        """Bytes held by the grid stack."""
-        return self.grids.numel() * self.grids.element_size()
+        """Bytes held by the brick stack."""
+        return self.bricks.numel() * self.bricks.element_size()
+
+    def grid(self, n: int) -> torch.Tensor:
+        """Object n's dense grid (R, R, R), in the storage dtype (for tests and inspection)."""
+        r, nb = self.resolution, BRICK_CELLS + 1
+        b = self.bricks_per_axis
+        c = torch.arange(r, device=self.bricks.device)
+        brick = (c // BRICK_CELLS).clamp(max=b - 1)
+        within = c - BRICK_CELLS * brick
+        cubes = self.bricks[n, ..., : nb**3].reshape(b, b, b, nb, nb, nb)
+        bi, bj, bk = brick.view(-1, 1, 1), brick.view(1, -1, 1), brick.view(1, 1, -1)
+        wi, wj, wk = within.view(-1, 1, 1), within.view(1, -1, 1), within.view(1, 1, -1)
+        return cubes[bi, bj, bk, wi, wj, wk]
 
     def query(
         self,
@@ -227,7 +304,23 @@ class SDFLookup(torch.nn.Module):
         object_ids: (E,) long, index into the stacked grids.
         """
         if torch.compiler.is_compiling():
-            return self._query_for_compiler(points_world, object_pos, object_quat, object_ids)
+            if points_world.shape[0] * points_world.shape[1] <= _COMPILED_MAX_POINTS:
+                return self._query_for_compiler(points_world, object_pos, object_quat, object_ids)
+            return self._query_eager(points_world, object_pos, object_quat, object_ids)
+        return self._query_eager(points_world, object_pos, object_quat, object_ids)
+
+    forward = query  # calling the module is querying it
+
+    @torch.compiler.disable
+    def _query_eager(
+        self,
+        points_world: torch.Tensor,
+        object_pos: torch.Tensor,
+        object_quat: torch.Tensor,
+        object_ids: torch.Tensor,
+    ) -> torch.Tensor:
+        """``query`` for eager mode (also called, untraced, from compiled code for large
+        batches)."""
         ids = object_ids.long()
         n_env, k = points_world.shape[:2]
         # Per env, the affine map world offset -> voxel coordinates: u = A (p - pos) + shift with
@@ -243,8 +336,6 @@ class SDFLookup(torch.nn.Module):
         torch.addcmul(shift, a[:, 0], d[0], out=u)
         u.addcmul_(a[:, 1], d[1]).addcmul_(a[:, 2], d[2])
         return self._interpolate(buf, ids, k)
-
-    forward = query  # calling the module is querying it
 
     def _query_for_compiler(
         self,
@@ -266,10 +357,16 @@ class SDFLookup(torch.nn.Module):
         t = u - base
         t = torch.where(outside, t.round(), t)
         b = base.long()
-        flat = ids[:, None] * r**3 + b[..., 0] * (r * r) + b[..., 1] * r + b[..., 2]
-        grid = self.grids.view(-1)
-        steps = [di * r * r + dj * r + dk for dk in (0, 1) for dj in (0, 1) for di in (0, 1)]
-        corner = [grid[flat + step].float() for step in steps]
+        nb = self.bricks_per_axis
+        brick = b // BRICK_CELLS
+        within = b - BRICK_CELLS * brick
+        si, sj, sk = _BRICK_STRIDES
+        flat = (
+            ((ids[:, None] * nb + brick[..., 0]) * nb + brick[..., 1]) * nb + brick[..., 2]
+        ) * BRICK_VALUES + within[..., 0] * si + within[..., 1] * sj + within[..., 2] * sk
+        values = self.bricks.view(-1)
+        steps = [di * si + dj * sj + dk * sk for dk in (0, 1) for dj in (0, 1) for di in (0, 1)]
+        corner = [values[flat + step].float() for step in steps]
         tx, ty, tz = t.unbind(-1)
         c = [torch.lerp(corner[i], corner[i + 4], tz) for i in range(4)]  # (di, dj)
         c = [torch.lerp(c[i], c[i + 2], ty) for i in range(2)]  # di
@@ -358,25 +455,41 @@ class SDFLookup(torch.nn.Module):
         t = u.sub_(base) if not clamp else u.sub_(base.clamp_(0.0, r - 2.0)).clamp_(0.0, 1.0)
         if outside is not None:
             t = torch.where(outside, t.round(), t)
-        # Flat index in the stack; int32 where it fits (half the index traffic of int64).
-        index_dtype = torch.int32 if self.grids.numel() < 2**31 else torch.long
-        if r**3 <= 2**24:
-            # The index within one grid is an integer below 2**24, exact in float32: three
-            # passes over one row instead of converting all three rows first.
-            flat = torch.add(base[2], base[1], alpha=r).add_(base[0], alpha=r * r)
-            flat = flat.to(index_dtype)
+        # Flat index in the brick stack: brick (base // 4) and centre within it (base % 4) on
+        # each axis, c * stride + (c // 4) * (brick stride - 4 * stride) summed over the axes.
+        # int32 where it fits (half the index traffic of int64).
+        index_dtype = torch.int32 if self.bricks.numel() < 2**31 else torch.long
+        nb = self.bricks_per_axis
+        per_object = nb**3 * BRICK_VALUES
+        strides = _BRICK_STRIDES
+        brick_strides = (nb * nb * BRICK_VALUES, nb * BRICK_VALUES, BRICK_VALUES)
+        coarse = torch.mul(base, 1.0 / BRICK_CELLS).floor_()
+        if per_object <= 2**24:
+            # The index within one object's bricks is an integer below 2**24, exact in float32
+            # (and so is every partial sum): passes over one row, converted once at the end.
+            flat = torch.mul(base[2], strides[2])
         else:
-            b = base.to(index_dtype)
-            flat = torch.add(b[2], b[1], alpha=r).add_(b[0], alpha=r * r)
-        del base
-        flat[:n].view(k, n_env).add_((ids.to(index_dtype) * r**3)[None, :])
+            base, coarse = base.to(index_dtype), coarse.to(index_dtype)
+            flat = torch.mul(base[2], strides[2])
+        for axis in (1, 0):
+            flat.add_(base[axis], alpha=strides[axis])
+        for axis in (2, 1, 0):
+            flat.add_(coarse[axis], alpha=brick_strides[axis] - BRICK_CELLS * strides[axis])
+        flat = flat.to(index_dtype)
+        del base, coarse
+        flat[:n].view(k, n_env).add_((ids.to(index_dtype) * per_object)[None, :])
+        # Gather in env-major order: an env's K fingertips are close together in one object's
+        # grid and share its bricks, lines and pages, while consecutive points in (K, E) order
+        # belong to different objects (16,384 x 5 in 78 grids, float16: 1.2 ms instead of
+        # 2.1 ms for the gather alone; the arithmetic above stays in the vectorisable layout).
+        flat, t = _env_major(flat, n_env, k), _env_major(t, n_env, k)
         # Corner indices block by block, (n_blocks, 8, block): the gather then reads the 8
-        # corners of one block's 128 points back to back, while their ~540 cache lines are still
-        # in L1/L2.  Corner-major order (8, P) instead walks all E * K points 8 times and fetches
+        # corners of one block's 128 points back to back, while their cache lines are still in
+        # L1/L2.  Corner-major order (8, P) instead walks all E * K points 8 times and fetches
         # each line again from L3 or memory (~1.3x the gather's time at 16,384 x 5 on the 2-core
         # EPYC).  The same order works unchanged on a GPU.
         idx = flat.view(n_blocks, 1, block) + self.corner_offsets.to(index_dtype)[:, None]
-        corners = self.grids.view(-1).index_select(0, idx.view(-1)).float()
+        corners = self.bricks.view(-1).index_select(0, idx.view(-1)).float()
         del idx
         # Trilinear as three lerps (z, then y, then x) over contiguous halves of each block, the
         # first two written over their first input: every fresh intermediate would compete with
@@ -386,7 +499,18 @@ class SDFLookup(torch.nn.Module):
         c = torch.lerp(c[:, 0], c[:, 1], t[2], out=c[:, 0])  # (n_blocks, 4, block): dj, di
         c = torch.lerp(c[:, :2], c[:, 2:], t[1], out=c[:, :2])  # (n_blocks, 2, block): di
         c = torch.lerp(c[:, 0], c[:, 1], t[0, :, 0])  # (n_blocks, block), contiguous
-        return c.view(-1)[:n].view(k, n_env).t().contiguous()
+        return c.view(-1)[:n].view(n_env, k)
+
+
+def _env_major(x: torch.Tensor, n_env: int, k: int) -> torch.Tensor:
+    """x (..., P) with its first E * K points in (K, E) order, then padding: a copy with them in
+    (E, K) order (the padding as it was)."""
+    n = n_env * k
+    lead = x.shape[:-1]
+    out = torch.empty_like(x)
+    out[..., :n].view(*lead, n_env, k).copy_(x[..., :n].view(*lead, k, n_env).transpose(-1, -2))
+    out[..., n:] = x[..., n:]
+    return out
 
 
 def naive_query(

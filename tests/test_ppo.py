@@ -118,8 +118,37 @@ def test_train_writes_run_directory(builtin_data: Config, tmp_path: Path, repres
     assert sum(int(r["episodes"]) for r in rows) >= 4
 
 
+def with_curriculum(cfg, start: float, increment: float):  # noqa: ANN001, ANN201
+    reward = dataclasses.replace(
+        cfg.env.reward, h_bar_start=start, h_bar_increment=increment, h_bar_promote=0.5
+    )
+    return dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, reward=reward))
+
+
+def test_lift_curriculum_promotes_and_counts_task_success(
+    builtin_data: Config, tmp_path: Path
+) -> None:
+    # A target 1 m below the start: every env "succeeds" at its first step, so the running
+    # success at the target is 1 and the target rises by 0.6 per full window (4 episodes),
+    # up to, never past, h_bar = 0.2.  Success at the task's 0.2 m stays 0 (nothing is lifted).
+    cfg = with_curriculum(tiny_config(builtin_data.data_dir, iterations=4), -1.0, 0.6)
+    run = train(cfg, tmp_path / "run", progress=False)
+    rows = list(csv.DictReader(run.metrics.read_text().splitlines()))
+    assert [round(float(r["h_bar"]), 6) for r in rows[:3]] == [-1.0, -0.4, 0.2]
+    assert float(rows[0]["target_success_rate"]) == 1.0
+    assert all(float(r["success_rate"]) == 0.0 for r in rows)
+    assert torch.load(run.last, weights_only=False)["h_bar"] == pytest.approx(0.2)
+    # Evaluation uses the task's h_bar, not the curriculum's.
+    _, agent = load_agent(run.path)
+    env = GraspEnv(dataclasses.replace(cfg.env, num_envs=4), seed=1)
+    assert float(env.h_bar) == pytest.approx(0.2)
+    success, _ = run_episodes(env, agent.actor)
+    assert not success.any()
+
+
 def test_resume_continues_bit_for_bit(builtin_data: Config, tmp_path: Path) -> None:
-    cfg = tiny_config(builtin_data.data_dir, iterations=4)
+    # With a lift curriculum, whose target is part of the state to restore.
+    cfg = with_curriculum(tiny_config(builtin_data.data_dir, iterations=4), -1.0, 0.3)
     straight = train(cfg, tmp_path / "straight", progress=False)
     # A run killed after iteration 3 (its last checkpoint is iteration 2), then resumed.
     killed = train(cfg, tmp_path / "killed", progress=False, stop_after=3)
@@ -134,6 +163,9 @@ def test_resume_continues_bit_for_bit(builtin_data: Config, tmp_path: Path) -> N
     assert (a["env"]["backend"]["state"] == b["env"]["backend"]["state"]).all()
     rows = list(csv.DictReader(killed.metrics.read_text().splitlines()))
     assert [int(r["iteration"]) for r in rows] == [1, 2, 3, 4]
+    straight_rows = list(csv.DictReader(straight.metrics.read_text().splitlines()))
+    assert [r["h_bar"] for r in rows] == [r["h_bar"] for r in straight_rows]
+    assert float(rows[-1]["h_bar"]) > -1.0
 
 
 def test_eval_counts_match_a_manual_count(builtin_data: Config, tmp_path: Path) -> None:

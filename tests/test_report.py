@@ -252,3 +252,19 @@ def test_malformed_inputs_name_the_path(run_dirs: list[Path]) -> None:
     with pytest.raises(TrainerError, match="success_rate 'oops'") as err:
         report.load_run(run_dirs[1])
     assert f"{metrics}:12" in str(err.value)
+
+
+def test_curriculum_runs_get_their_plot(run_dirs: list[Path], tmp_path: Path) -> None:
+    # A run whose metrics carry the lift curriculum's columns, the target rising from 0.04 m.
+    path = run_dirs[0]
+    lines = ["iteration,env_steps,wall_time_s,success_rate,h_bar,target_success_rate"]
+    for i in range(1, 9):
+        lines.append(f"{i},{100_000 * i},{10 * i},0.0,{min(0.04 + 0.02 * i, 0.2)},{0.05 * i}")
+    (path / "metrics.csv").write_text("\n".join(lines) + "\n")
+    run = report.load_run(path)
+    assert run.has_curriculum and run.h_bar is not None and run.target_success_rate is not None
+    np.testing.assert_allclose(run.target_success_rate, 0.05 * np.arange(1, 9))
+    assert not report.load_run(run_dirs[1]).has_curriculum  # no such columns
+    written = report.write_report(run_dirs, tmp_path / "out")
+    assert "curriculum.png" in {p.name for p in written}
+    assert "![lift curriculum](curriculum.png)" in (tmp_path / "out" / "report.md").read_text()

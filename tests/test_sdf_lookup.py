@@ -15,11 +15,12 @@ import torch
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from geomprep.errors import GeomprepError
 from geomprep.sdf import SDFGrid, compute_sdf, voxel_centers
 from geomprep.sdf_lookup import (
     FLOAT16_RELATIVE_ERROR,
     SDFLookup,
-    empty_grids,
+    bricks_per_axis,
     naive_query,
     quat_to_matrix,
 )
@@ -226,9 +227,9 @@ def test_from_hdf5_roundtrip(tmp_path: Path, box: SDFGrid) -> None:
             g.attrs["voxel_size"] = sdf.voxel_size
         paths.append(path)
     lookup = SDFLookup.from_hdf5(paths, dtype=torch.float16)
-    assert lookup.names == ["a_box", "b_box"] and lookup.grids.dtype == torch.float16
-    assert lookup.grids.shape == (2, 80, 80, 80)
-    np.testing.assert_allclose(lookup.grids[1].float().numpy(), box.grid, rtol=2**-11, atol=1e-7)
+    assert lookup.names == ["a_box", "b_box"] and lookup.dtype == torch.float16
+    assert lookup.resolution == 80 and lookup.grid(1).shape == (80, 80, 80)
+    np.testing.assert_allclose(lookup.grid(1).float().numpy(), box.grid, rtol=2**-11, atol=1e-7)
     np.testing.assert_allclose(lookup.inv_voxel.numpy(), 1 / box.voxel_size, rtol=1e-6)
 
 
@@ -260,21 +261,32 @@ def test_query_input_layouts_and_dtypes(box: SDFGrid) -> None:
     np.testing.assert_allclose(ref.numpy(), expect, atol=2e-6)
 
 
-def test_empty_grids_used_in_place(box: SDFGrid) -> None:
-    grids = empty_grids((1, *box.grid.shape))
-    grids.numpy()[0] = box.grid
-    lookup = SDFLookup(grids, box.bounds_min[None], [box.voxel_size])
-    assert lookup.grids.data_ptr() == grids.data_ptr()
-    local = torch.tensor(
-        np.random.default_rng(3).uniform(-0.2, 0.2, (2, 7, 3)), dtype=torch.float32
-    )
-    ids = torch.zeros(2, dtype=torch.long)
-    np.testing.assert_array_equal(
-        lookup.query_local(local, ids).numpy(), _lookup(box).query_local(local, ids).numpy()
-    )
-    # Another dtype is copied (into fresh huge-page memory on Linux), not aliased.
-    half = SDFLookup(grids, box.bounds_min[None], [box.voxel_size], dtype=torch.float16)
-    assert half.grids.data_ptr() != grids.data_ptr() and half.grids.dtype == torch.float16
+@pytest.mark.parametrize("r", [2, 9, 10, 12, 13])
+def test_bricks_hold_the_grid(r: int) -> None:
+    # R - 1 cells a multiple of the brick size (9, 13) or not (the last brick is padded); the
+    # dense grid comes back exactly, and every cell's lookup matches the naive one on it.
+    rng = np.random.default_rng(r)
+    grids = rng.normal(size=(2, r, r, r)).astype(np.float32)
+    lookup = SDFLookup((g for g in grids), np.full((2, 3), -0.5), [1.0 / r] * 2)
+    assert lookup.bricks.shape == (2, *(bricks_per_axis(r),) * 3, 128)
+    for n in range(2):
+        np.testing.assert_array_equal(lookup.grid(n).numpy(), grids[n])
+    local = rng.uniform(-0.5, 0.5, (40, 6, 3))
+    ids = rng.integers(0, 2, 40)
+    got = lookup.query_local(torch.tensor(local, dtype=torch.float32), torch.tensor(ids))
+    expect = naive_query(grids, np.full((2, 3), -0.5), np.full(2, 1.0 / r), local, ids)
+    np.testing.assert_allclose(got.numpy(), expect, atol=1e-5)
+
+
+def test_bad_grids_are_refused() -> None:
+    cube = np.zeros((8, 8, 8), dtype=np.float32)
+    bounds, voxel = np.zeros((2, 3)), [0.01, 0.01]
+    with pytest.raises(GeomprepError, match="need \\(R, R, R\\)"):
+        SDFLookup([cube, np.zeros((8, 8, 7))], bounds, voxel)
+    with pytest.raises(GeomprepError, match="one SDF resolution"):
+        SDFLookup([cube, np.zeros((9, 9, 9))], bounds, voxel)
+    with pytest.raises(GeomprepError, match="1 SDF grids for 2 bounds"):
+        SDFLookup([cube], bounds, voxel)
 
 
 @pytest.mark.parametrize("n_env, k", [(1, 1), (3, 5), (129, 1), (300, 5)])

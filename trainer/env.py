@@ -103,6 +103,7 @@ class GraspEnv(EnvBase):
         self.target_rot = torch.eye(3, device=self.device).repeat(E, 1, 1)
         self.ctrl = self.home_ctrl.repeat(E, 1)
         self.palm_pos = self.home_keypoint.repeat(E, 1)
+        self.h_bar = torch.tensor(cfg.reward.h_bar, device=self.device)
         self._pending_restore: dict | None = None
         self._task_outputs = self._task_outputs_eager
         self._commands = self._commands_eager
@@ -181,6 +182,11 @@ class GraspEnv(EnvBase):
         self.done_spec = Composite(
             done=flag(), terminated=flag(), truncated=flag(), shape=(E,), device=self.device
         )
+
+    def set_lift_target(self, h_bar: float) -> None:
+        """Lift height (m) that earns the success bonus and ends an episode: ``cfg.reward.h_bar``
+        unless a training curriculum lowers it."""
+        self.h_bar.fill_(h_bar)
 
     def _set_seed(self, seed: int | None) -> None:
         self._rng.manual_seed(0 if seed is None else seed)
@@ -312,7 +318,9 @@ class GraspEnv(EnvBase):
 
     def _observe(self, reset: bool) -> TensorDictBase:
         qpos = self.backend.qpos
-        obs, terms, flags, palm_pos = self._task_outputs(qpos, self.start_height, self.step_count)
+        obs, terms, flags, palm_pos = self._task_outputs(
+            qpos, self.start_height, self.step_count, self.h_bar
+        )
         self.palm_pos = palm_pos
         lift = terms.pop("lift_height")
         success, terminated, truncated = flags
@@ -343,12 +351,16 @@ class GraspEnv(EnvBase):
         return out
 
     def _task_outputs_eager(
-        self, qpos: torch.Tensor, start_height: torch.Tensor, step_count: torch.Tensor
+        self,
+        qpos: torch.Tensor,
+        start_height: torch.Tensor,
+        step_count: torch.Tensor,
+        h_bar: torch.Tensor,
     ) -> tuple[dict, dict, tuple, torch.Tensor]:
         """Everything the task computes from the simulated state, as a pure tensor function
         (``torch.compile`` fuses it when ``cfg.compile``): (observations, reward terms with
         their sum ``reward`` and ``lift_height``, (success, terminated, truncated), palm
-        position (E, 3))."""
+        position (E, 3)). h_bar: the lift target (0-d tensor, m)."""
         poses = self.kinematics.forward(qpos)
         obj_pos = qpos[:, self.obj_qpos : self.obj_qpos + 3]
         obj_quat = qpos[:, self.obj_qpos + 3 : self.obj_qpos + 7]
@@ -359,11 +371,11 @@ class GraspEnv(EnvBase):
         # networks or to the value targets.
         obs = {k: torch.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0) for k, v in obs.items()}
         lift = obj_pos[:, 2] - start_height
-        terms = self._get_reward(lift, tips, obj_pos, obj_quat, obs)
+        terms = self._get_reward(lift, h_bar, tips, obj_pos, obj_quat, obs)
         reward = terms["lift"] + terms["success"] + terms["contact"]
         terms["reward"] = torch.nan_to_num(reward, nan=0.0, posinf=0.0, neginf=0.0)
         terms["lift_height"] = lift
-        flags = self._get_termination(lift, obj_pos, step_count)
+        flags = self._get_termination(lift, h_bar, obj_pos, step_count)
         return obs, terms, flags, palm_pos
 
     def _get_obs(
@@ -384,6 +396,7 @@ class GraspEnv(EnvBase):
     def _get_reward(
         self,
         lift: torch.Tensor,
+        h_bar: torch.Tensor,
         tips: torch.Tensor,
         obj_pos: torch.Tensor,
         obj_quat: torch.Tensor,
@@ -392,8 +405,8 @@ class GraspEnv(EnvBase):
         """The paper's reward, term by term (E,) each."""
         r = self.cfg.reward
         terms = {
-            "lift": r.c1 / ((r.h_bar - lift).abs() + r.eps_h),
-            "success": r.c2 * (lift >= r.h_bar).float(),
+            "lift": r.c1 / ((h_bar - lift).abs() + r.eps_h),
+            "success": r.c2 * (lift >= h_bar).float(),
         }
         if r.kind == "none":
             terms["contact"] = torch.zeros_like(lift)
@@ -411,11 +424,12 @@ class GraspEnv(EnvBase):
         return terms
 
     def _get_termination(
-        self, lift: torch.Tensor, obj_pos: torch.Tensor, step_count: torch.Tensor
+        self, lift: torch.Tensor, h_bar: torch.Tensor, obj_pos: torch.Tensor,
+        step_count: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(success, terminated, truncated), each (E,) bool. A blown-up simulation also
         truncates; ``_observe`` adds that from the backend's ``unstable``."""
-        success = lift >= self.cfg.reward.h_bar
+        success = lift >= h_bar
         fell = obj_pos[:, 2] < self.cfg.fall_height
         return success, success | fell, step_count >= self.cfg.max_steps
 

@@ -34,9 +34,10 @@ from trainer.errors import TrainerError
 from trainer.models import Agent
 
 METRICS = (
-    "iteration", "env_steps", "wall_time_s", "fps", "success_rate", "episodes",
-    "episode_return", "episode_length", "unstable_resets", "loss_objective", "loss_critic",
-    "loss_entropy", "entropy", "kl_approx", "clip_fraction", "action_std", "lr",
+    "iteration", "env_steps", "wall_time_s", "fps", "success_rate", "h_bar",
+    "target_success_rate", "episodes", "episode_return", "episode_length", "unstable_resets",
+    "loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx", "clip_fraction",
+    "action_std", "lr",
 )
 LOSS_KEYS = ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx", "clip_fraction")  # noqa: E501
 
@@ -120,7 +121,11 @@ def train(
     total_iterations = math.ceil(cfg.run.total_steps / frames)
     minibatch = minibatch_size(cfg)
     window = cfg.run.success_window or cfg.env.num_envs
+    # Success at the task's lift height (the paper's measure) and, for the curriculum, at the
+    # current training target.
     outcomes: deque[bool] = deque(maxlen=window)
+    target_outcomes: deque[bool] = deque(maxlen=window)
+    h_bar = cfg.env.reward.h_bar_start
     episode_return = torch.zeros(cfg.env.num_envs)
     episode_length = torch.zeros(cfg.env.num_envs)
     iteration, wall_offset = 0, 0.0
@@ -131,10 +136,14 @@ def train(
         optimizer.load_state_dict(checkpoint["optimizer"])
         shuffle.set_state(checkpoint["shuffle_rng"])
         outcomes.extend(checkpoint["outcomes"])
+        # (Checkpoints from before the curriculum existed lack both.)
+        target_outcomes.extend(checkpoint.get("target_outcomes", []))
+        h_bar = checkpoint.get("h_bar", cfg.env.reward.h_bar)
         episode_return, episode_length = checkpoint["episode_return"], checkpoint["episode_length"]
         iteration, wall_offset = checkpoint["iteration"], checkpoint["wall_time_s"]
         env.restore_on_next_reset(checkpoint["env"])
         _truncate_metrics(run.metrics, iteration)
+    env.set_lift_target(h_bar)
     collector = Collector(
         env, agent.actor, frames_per_batch=frames, total_frames=-1,
         auto_register_policy_transforms=False,
@@ -184,7 +193,16 @@ def train(
                     _adapt_lr(optimizer, sum(epoch_kl) / len(epoch_kl), ppo)
             agent.obs_norm.update(data["proprio"], data["object"])
 
-            stats = _episode_stats(data, outcomes, episode_return, episode_length)
+            stats = _episode_stats(
+                data, cfg.env.reward.h_bar, outcomes, target_outcomes, episode_return,
+                episode_length,
+            )
+            row_h_bar = h_bar
+            target_rate = sum(target_outcomes) / len(target_outcomes) if target_outcomes else 0.0
+            h_bar = _next_lift_target(h_bar, target_rate, len(target_outcomes) == window, cfg)
+            if h_bar != row_h_bar:
+                env.set_lift_target(h_bar)
+                target_outcomes.clear()
             now = time.perf_counter()
             steps = iteration * frames
             row = {
@@ -193,6 +211,8 @@ def train(
                 "wall_time_s": now - start,
                 "fps": (steps - last_steps) / max(now - last_time, 1e-9),
                 "success_rate": sum(outcomes) / len(outcomes) if outcomes else float("nan"),
+                "h_bar": row_h_bar,
+                "target_success_rate": target_rate,
                 **stats,
                 **{k: (sum(v) / len(v) if v else float("nan")) for k, v in losses.items()},
                 "action_std": float(agent.policy_net.log_std.detach().exp().mean()),
@@ -204,11 +224,14 @@ def train(
                 if key != "iteration":
                     writer.add_scalar(key, value, iteration)
             bar.update(frames)
-            bar.set_postfix(success=f"{row['success_rate']:.2f}", it=iteration)
+            postfix = {"success": f"{row['success_rate']:.2f}", "it": iteration}
+            if row_h_bar != cfg.env.reward.h_bar:
+                postfix.update(h_bar=f"{row_h_bar:.2f}", at_h_bar=f"{target_rate:.2f}")
+            bar.set_postfix(postfix)
             if iteration % cfg.run.checkpoint_every == 0 or iteration == total_iterations:
                 _save_checkpoint(
-                    run, iteration, agent, optimizer, shuffle, outcomes, episode_return,
-                    episode_length, env, row["wall_time_s"],
+                    run, iteration, agent, optimizer, shuffle, outcomes, target_outcomes, h_bar,
+                    episode_return, episode_length, env, row["wall_time_s"],
                 )
     finally:
         bar.close()
@@ -227,14 +250,27 @@ def _adapt_lr(optimizer: torch.optim.Optimizer, kl: float, ppo) -> None:  # noqa
             group["lr"] = min(group["lr"] * 1.5, high)
 
 
+def _next_lift_target(h_bar: float, target_rate: float, window_full: bool, cfg: TrainConfig) -> float:  # noqa: E501
+    """The curriculum: raise the training lift target once the running success at it reaches
+    ``h_bar_promote`` over a full window of episodes."""
+    reward = cfg.env.reward
+    if h_bar >= reward.h_bar or not window_full or target_rate < reward.h_bar_promote:
+        return h_bar
+    return round(min(h_bar + reward.h_bar_increment, reward.h_bar), 6)  # no 0.09000000000000001
+
+
 def _episode_stats(
-    data, outcomes: deque, episode_return: torch.Tensor, episode_length: torch.Tensor  # noqa: ANN001
+    data, task_h_bar: float, outcomes: deque, target_outcomes: deque,  # noqa: ANN001
+    episode_return: torch.Tensor, episode_length: torch.Tensor,
 ) -> dict[str, float]:
     """Walk the rollout in time (a loop over T steps, not over envs): accumulate returns, record
-    the episodes that ended. Updates ``outcomes`` and the running return/length in place."""
+    the episodes that ended. Updates ``outcomes`` (lifted by the task's ``task_h_bar``),
+    ``target_outcomes`` (by the current training target) and the running return/length in
+    place."""
     reward = data["next", "reward"][..., 0]
     done = data["next", "done"][..., 0]
-    success = data["next", "success"][..., 0]
+    target_success = data["next", "success"][..., 0]
+    success = target_success & (data["next", "lift_height"][..., 0] >= task_h_bar)
     returns, lengths = [], []
     for t in range(reward.shape[1]):
         episode_return += reward[:, t]
@@ -244,6 +280,7 @@ def _episode_stats(
             returns.append(episode_return[ended].clone())
             lengths.append(episode_length[ended].clone())
             outcomes.extend(success[ended, t].tolist())
+            target_outcomes.extend(target_success[ended, t].tolist())
             episode_return[ended] = 0.0
             episode_length[ended] = 0.0
     ended_returns = torch.cat(returns) if returns else torch.zeros(0)
@@ -279,8 +316,9 @@ def _truncate_metrics(path: Path, iteration: int) -> None:
 
 def _save_checkpoint(
     run: RunDir, iteration: int, agent: Agent, optimizer: torch.optim.Optimizer,
-    shuffle: torch.Generator, outcomes: deque, episode_return: torch.Tensor,
-    episode_length: torch.Tensor, env: GraspEnv, wall_time_s: float,
+    shuffle: torch.Generator, outcomes: deque, target_outcomes: deque, h_bar: float,
+    episode_return: torch.Tensor, episode_length: torch.Tensor, env: GraspEnv,
+    wall_time_s: float,
 ) -> None:
     state = {
         "iteration": iteration,
@@ -290,6 +328,8 @@ def _save_checkpoint(
         "shuffle_rng": shuffle.get_state(),
         "torch_rng": torch.get_rng_state(),
         "outcomes": list(outcomes),
+        "target_outcomes": list(target_outcomes),
+        "h_bar": h_bar,
         "episode_return": episode_return.clone(),
         "episode_length": episode_length.clone(),
         "env": env.snapshot(),

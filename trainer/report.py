@@ -54,6 +54,14 @@ class Run:
     wall_time_s: np.ndarray
     success_rate: np.ndarray
     per_object: dict[str, tuple[int, int]] | None
+    h_bar: np.ndarray | None = None
+    """The lift curriculum's training target (m) and the success rate at it, per iteration;
+    None for runs logged before the curriculum existed."""
+    target_success_rate: np.ndarray | None = None
+
+    @property
+    def has_curriculum(self) -> bool:
+        return self.h_bar is not None and bool(np.nanmin(self.h_bar) < np.nanmax(self.h_bar))
 
     @property
     def group(self) -> GroupKey:
@@ -71,7 +79,9 @@ def load_run(path: str | Path) -> Run:
             f"{path}: not a directory; pass a run directory written by trainer run"
         )
     representation, reward, robot, seed = _read_config(path / "config.json")
-    env_steps, wall_time_s, success_rate = _read_metrics(path / "metrics.csv")
+    env_steps, wall_time_s, success_rate, h_bar, target_rate = _read_metrics(
+        path / "metrics.csv"
+    )
     per_object_path = path / "eval" / "per_object.csv"
     per_object = _read_per_object(per_object_path) if per_object_path.is_file() else None
     return Run(
@@ -84,6 +94,8 @@ def load_run(path: str | Path) -> Run:
         wall_time_s=wall_time_s,
         success_rate=success_rate,
         per_object=per_object,
+        h_bar=h_bar,
+        target_success_rate=target_rate,
     )
 
 
@@ -122,39 +134,39 @@ def _read_config(path: Path) -> tuple[str, str, str, int | None]:
     return names[0], names[1], names[2], seed
 
 
-def _read_metrics(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _read_metrics(path: Path) -> tuple[np.ndarray, ...]:
+    """env_steps, wall_time_s, success_rate, then h_bar and target_success_rate (None where the
+    file predates them)."""
     fix = "pass a run directory written by trainer run"
     if not path.is_file():
         raise TrainerError(f"{path}: missing; {fix}")
     columns = ("env_steps", "wall_time_s", "success_rate")
-    rows: list[tuple[float, float, float]] = []
+    optional = ("h_bar", "target_success_rate")
+    rows: list[list[float]] = []
     try:
         with path.open(newline="") as f:
             reader = csv.DictReader(f)
-            missing = [c for c in columns if c not in (reader.fieldnames or ())]
+            header = reader.fieldnames or ()
+            missing = [c for c in columns if c not in header]
             if missing:
                 raise TrainerError(f"{path}: header lacks {', '.join(missing)}; {fix}")
+            present = [c for c in optional if c in header]
             for row in reader:
                 rows.append(
-                    (
-                        _number(row["env_steps"], path, reader.line_num, "env_steps"),
-                        _number(row["wall_time_s"], path, reader.line_num, "wall_time_s"),
-                        # Empty until the first episode ends: NaN, skipped by every statistic.
-                        _number(
-                            row["success_rate"],
-                            path,
-                            reader.line_num,
-                            "success_rate",
-                            allow_empty=True,
-                        ),
-                    )
+                    [
+                        # A rate is empty until the first episode ends: NaN, skipped by every
+                        # statistic.
+                        _number(row[c], path, reader.line_num, c, allow_empty=c.endswith("rate"))
+                        for c in (*columns, *present)
+                    ]
                 )
     except (OSError, UnicodeDecodeError, csv.Error) as err:
         raise TrainerError(f"{path}: unreadable CSV ({err}); {fix}") from None
     if not rows:
         raise TrainerError(f"{path}: no iterations logged yet; report on the run once it has some")
     data = np.array(rows, dtype=np.float64)
-    return data[:, 0], data[:, 1], data[:, 2]
+    extra = [data[:, 3 + present.index(c)] if c in present else None for c in optional]
+    return data[:, 0], data[:, 1], data[:, 2], *extra
 
 
 def _number(
@@ -458,6 +470,28 @@ def plot_curves(
     return _save(fig, Path(out_png))
 
 
+def plot_curriculum(runs: Sequence[Run], out_png: str | Path) -> Path:
+    """For the runs with a lift curriculum: the training lift target (m) and the success rate at
+    it vs env steps (M), one colour per run. Writes ``out_png`` atomically and returns it."""
+    plt = _pyplot()
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    for run in runs:
+        if not run.has_curriculum:
+            continue
+        assert run.h_bar is not None and run.target_success_rate is not None
+        label = f"{'/'.join(run.group)} s{run.seed}"
+        line = top.plot(run.env_steps / 1e6, run.h_bar, label=label)[0]
+        bottom.plot(run.env_steps / 1e6, run.target_success_rate, color=line.get_color())
+    top.set_ylabel("lift target h_bar (m)")
+    top.grid(alpha=0.3)
+    top.legend(loc="lower right")
+    bottom.set_ylabel("success rate at the target")
+    bottom.set_ylim(0.0, 1.02)
+    bottom.set_xlabel("env steps (M)")
+    bottom.grid(alpha=0.3)
+    return _save(fig, Path(out_png))
+
+
 def success_gain(runs: Sequence[Run], base: str, other: str) -> list[tuple[str, float]]:
     """Per object evaluated in both groups: mean success of ``other`` minus that of ``base``
     (fractions), largest gain first. Groups are named as in ``resolve_group``."""
@@ -523,6 +557,9 @@ def write_report(
         plot_curves(runs, out_dir / "success_vs_steps.png", x="env_steps"),
         plot_curves(runs, out_dir / "success_vs_time.png", x="wall_time_s"),
     ]
+    curriculum = [r for r in runs if r.has_curriculum]
+    if curriculum:
+        written.append(plot_curriculum(curriculum, out_dir / "curriculum.png"))
     if compare is not None:
         base, other = compare
         name = f"gain_{_file_label(other)}_over_{_file_label(base)}.png"
@@ -549,6 +586,16 @@ def write_report(
         "![success vs wall time](success_vs_time.png)",
         "",
     ]
+    if curriculum:
+        parts += [
+            "## Lift curriculum",
+            "",
+            f"{len(curriculum)} runs trained with a lift curriculum: the success rates above "
+            "count lifts by the task's h_bar only; the target and the success at it:",
+            "",
+            "![lift curriculum](curriculum.png)",
+            "",
+        ]
     if compare is not None:
         parts += [
             f"## Gain of {compare[1]} over {compare[0]}",
