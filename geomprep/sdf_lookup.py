@@ -39,8 +39,9 @@ from __future__ import annotations
 import ctypes
 import mmap
 import sys
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
@@ -244,26 +245,12 @@ class SDFLookup(torch.nn.Module):
         if not paths:
             raise GeomprepError("no SDF files given: pass at least one processed .h5 file")
 
-        def read(path: str | Path, what: str):  # noqa: ANN202
-            try:
-                with h5py.File(path, "r") as f:
-                    group = f["sdf"]
-                    if what == "grid":
-                        return np.asarray(group["grid"][()], dtype=np.float32)
-                    return (
-                        np.asarray(group.attrs["bounds_min"], dtype=np.float32),
-                        float(group.attrs["voxel_size"]),
-                    )
-            except (OSError, KeyError) as err:
-                raise GeomprepError(
-                    f"cannot read an SDF grid from {path} ({err}): build it with `geomprep sdf`"
-                ) from err
-
-        attrs = [read(p, "attrs") for p in paths]
+        # Attributes first (the stack is allocated for all objects), then grids one at a time.
+        attrs = [_read_sdf(p, lambda g: (g.attrs["bounds_min"], g.attrs["voxel_size"])) for p in paths]  # noqa: E501
         return cls(
-            (read(p, "grid") for p in paths),
-            np.stack([a[0] for a in attrs]),
-            np.array([a[1] for a in attrs]),
+            (_read_sdf(p, lambda g: np.asarray(g["grid"][()], dtype=np.float32)) for p in paths),
+            np.stack([np.asarray(a[0], dtype=np.float32) for a in attrs]),
+            np.array([float(a[1]) for a in attrs]),
             dtype=dtype,
             names=[Path(p).stem for p in paths],
             device=device,
@@ -500,6 +487,17 @@ class SDFLookup(torch.nn.Module):
         c = torch.lerp(c[:, :2], c[:, 2:], t[1], out=c[:, :2])  # (n_blocks, 2, block): di
         c = torch.lerp(c[:, 0], c[:, 1], t[0, :, 0])  # (n_blocks, block), contiguous
         return c.view(-1)[:n].view(n_env, k)
+
+
+def _read_sdf(path: str | Path, read: Callable[[h5py.Group], Any]) -> Any:
+    """``read(f["sdf"])`` of an HDF5 file, a one-line GeomprepError naming the fix if it fails."""
+    try:
+        with h5py.File(path, "r") as f:
+            return read(f["sdf"])
+    except (OSError, KeyError) as err:
+        raise GeomprepError(
+            f"cannot read an SDF grid from {path} ({err}): build it with `geomprep sdf`"
+        ) from err
 
 
 def _env_major(x: torch.Tensor, n_env: int, k: int) -> torch.Tensor:

@@ -330,3 +330,12 @@ def test_empty_batch(sphere: SDFGrid) -> None:
         torch.zeros(0, 5, 3), torch.zeros(0, 3), torch.zeros(0, 4), torch.zeros(0, dtype=torch.long)
     )
     assert got.shape == (0, 5) and got.dtype == torch.float32
+
+
+def test_from_hdf5_names_a_file_without_a_grid(tmp_path: Path) -> None:
+    path = tmp_path / "no_sdf.h5"
+    with h5py.File(path, "w") as f:
+        f.create_group("mesh")
+    with pytest.raises(GeomprepError, match="no_sdf.h5.*geomprep sdf") as err:
+        SDFLookup.from_hdf5([path])
+    assert "\n" not in str(err.value)
