@@ -64,6 +64,14 @@ BRICK_VALUES = 128
 """Values per brick: 5^3 = 125 centres, padded so that bricks start on cache lines."""
 # Offsets of a centre (i, j, k) of a brick (each in 0..4) within it: i * 25 + j * 5 + k.
 _BRICK_STRIDES = ((BRICK_CELLS + 1) ** 2, BRICK_CELLS + 1, 1)
+# Steps within a brick to a cell's 8 corners, dk slowest and di fastest, the order in which the
+# lerps consume them (z first, over contiguous halves).
+_CORNER_STEPS = tuple(
+    di * _BRICK_STRIDES[0] + dj * _BRICK_STRIDES[1] + dk
+    for dk in (0, 1)
+    for dj in (0, 1)
+    for di in (0, 1)
+)
 
 
 def bricks_per_axis(resolution: int) -> int:
@@ -217,17 +225,14 @@ class SDFLookup(torch.nn.Module):
             count = n + 1
         if bricks is None or count != n_obj:
             raise GeomprepError(f"{count} SDF grids for {n_obj} bounds: pass one grid per object")
-        self.bricks_per_axis = bricks.shape[1]
         self.register_buffer("bricks", bricks)
         self.register_buffer("bounds_min", bounds.clone().to(device))
         self.register_buffer("inv_voxel", (1.0 / voxel).to(device))
         # u = p / voxel + shift puts voxel i's centre at u = i.
         self.register_buffer("shift", (-bounds / voxel[:, None] - 0.5).to(device))
-        # Steps within a brick to the 8 cell corners, dk slowest and di fastest, the order in
-        # which the lerps in _interpolate consume them (z first, over contiguous halves).
-        si, sj, sk = _BRICK_STRIDES
-        steps = [di * si + dj * sj + dk * sk for dk in (0, 1) for dj in (0, 1) for di in (0, 1)]
-        self.register_buffer("corner_offsets", torch.tensor(steps, dtype=torch.long, device=device))
+        self.register_buffer(
+            "corner_offsets", torch.tensor(_CORNER_STEPS, dtype=torch.long, device=device)
+        )
 
     @classmethod
     def from_hdf5(
@@ -255,6 +260,10 @@ class SDFLookup(torch.nn.Module):
             names=[Path(p).stem for p in paths],
             device=device,
         )
+
+    @property
+    def bricks_per_axis(self) -> int:
+        return self.bricks.shape[1]
 
     @property
     def dtype(self) -> torch.dtype:
@@ -290,10 +299,9 @@ class SDFLookup(torch.nn.Module):
         (COM) in the world; object_quat: (E, 4) (w, x, y, z), object-to-world rotation;
         object_ids: (E,) long, index into the stacked grids.
         """
-        if torch.compiler.is_compiling():
-            if points_world.shape[0] * points_world.shape[1] <= _COMPILED_MAX_POINTS:
-                return self._query_for_compiler(points_world, object_pos, object_quat, object_ids)
-            return self._query_eager(points_world, object_pos, object_quat, object_ids)
+        small = points_world.shape[0] * points_world.shape[1] <= _COMPILED_MAX_POINTS
+        if torch.compiler.is_compiling() and small:
+            return self._query_for_compiler(points_world, object_pos, object_quat, object_ids)
         return self._query_eager(points_world, object_pos, object_quat, object_ids)
 
     forward = query  # calling the module is querying it
@@ -352,8 +360,7 @@ class SDFLookup(torch.nn.Module):
             ((ids[:, None] * nb + brick[..., 0]) * nb + brick[..., 1]) * nb + brick[..., 2]
         ) * BRICK_VALUES + within[..., 0] * si + within[..., 1] * sj + within[..., 2] * sk
         values = self.bricks.view(-1)
-        steps = [di * si + dj * sj + dk * sk for dk in (0, 1) for dj in (0, 1) for di in (0, 1)]
-        corner = [values[flat + step].float() for step in steps]
+        corner = [values[flat + step].float() for step in _CORNER_STEPS]
         tx, ty, tz = t.unbind(-1)
         c = [torch.lerp(corner[i], corner[i + 4], tz) for i in range(4)]  # (di, dj)
         c = [torch.lerp(c[i], c[i + 2], ty) for i in range(2)]  # di
@@ -451,13 +458,11 @@ class SDFLookup(torch.nn.Module):
         strides = _BRICK_STRIDES
         brick_strides = (nb * nb * BRICK_VALUES, nb * BRICK_VALUES, BRICK_VALUES)
         coarse = torch.mul(base, 1.0 / BRICK_CELLS).floor_()
-        if per_object <= 2**24:
-            # The index within one object's bricks is an integer below 2**24, exact in float32
+        if per_object > 2**24:
+            # Below that the index within one object's bricks is an integer exact in float32
             # (and so is every partial sum): passes over one row, converted once at the end.
-            flat = torch.mul(base[2], strides[2])
-        else:
             base, coarse = base.to(index_dtype), coarse.to(index_dtype)
-            flat = torch.mul(base[2], strides[2])
+        flat = torch.mul(base[2], strides[2])
         for axis in (1, 0):
             flat.add_(base[axis], alpha=strides[axis])
         for axis in (2, 1, 0):
