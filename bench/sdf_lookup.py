@@ -7,7 +7,9 @@ Usage: python bench/sdf_lookup.py [--envs 16384] [--points 5] [--objects 78] [--
 Times ``SDFLookup.query`` for E envs x K fingertips (world points, random object poses and ids),
 on the CPU and, if available, CUDA, in float32 and float16 storage, eager and under
 ``torch.compile`` (as the trainer's env calls it): milliseconds per query, the median (and the
-10th and 90th percentiles) of --repeats calls after warm-up.  Baselines in the same run, on the
+10th and 90th percentiles) of --repeats calls after warm-up.  On the CPU both query kernels:
+the C kernel (geomprep/sdf_lookup_cpu.c, the default) and the torch ops (the GPU's code, and the
+CPU's without a C compiler), and their ratio.  Baselines in the same run, on the
 same points, on a plain dense (N, R, R, R) stack: a naive lookup that gathers the 8 corners with
 8 separate 4-D fancy-index reads, and scipy's RegularGridInterpolator called once per object
 (its grids are numpy, so a loop over objects).
@@ -226,18 +228,33 @@ def main() -> None:
             target = TARGET_CPU_MS if device == "cpu" else TARGET_GPU_MS
             for label, lookup in lookups.items():
                 lk = lookup.to(device)
-                # The trainer's env calls the lookup inside its torch.compile'd step.
-                compiled = compile_query(lk) if args.compile else None
-                for mode, fn in (("eager", lk.query), ("compiled", compiled)):
-                    if fn is None:
-                        continue
-                    ts = times_ms(lambda fn=fn, q=q: fn(*q), args.repeats, sync)
-                    # The spread says how much a shared machine disturbed the run.
-                    p10, p90 = ts[len(ts) // 10], ts[(len(ts) * 9) // 10]
+                with_c_kernel = device == "cpu" and lookup.use_cpu_kernel
+                # On the CPU, the C kernel (the default) and the torch ops (the GPU's path, and
+                # the fallback without a C compiler) on the same lookup.
+                kernels = {"C kernel": True} if with_c_kernel else {}
+                kernels["torch ops"] = False
+                medians = {}
+                for kernel, use_c in kernels.items():
+                    lk.use_cpu_kernel = use_c
+                    # The trainer's env calls the lookup inside its torch.compile'd step.
+                    compiled = compile_query(lk) if args.compile else None
+                    for mode, fn in (("eager", lk.query), ("compiled", compiled)):
+                        if fn is None:
+                            continue
+                        ts = times_ms(lambda fn=fn, q=q: fn(*q), args.repeats, sync)
+                        medians[kernel, mode] = statistics.median(ts)
+                        # The spread says how much a shared machine disturbed the run.
+                        p10, p90 = ts[len(ts) // 10], ts[(len(ts) * 9) // 10]
+                        print(
+                            f"{device:<5} SDFLookup.query {label} {kernel:<9} {mode:<8}: "
+                            f"{medians[kernel, mode]:8.3f} ms (p10 {p10:.3f}, p90 {p90:.3f})   "
+                            f"(target <= {target} ms)"
+                        )
+                lk.use_cpu_kernel = with_c_kernel
+                if with_c_kernel:
                     print(
-                        f"{device:<5} SDFLookup.query {label} {mode:<8}: "
-                        f"{statistics.median(ts):8.3f} ms (p10 {p10:.3f}, p90 {p90:.3f})   "
-                        f"(target <= {target} ms)"
+                        f"{device:<5}   {label}, eager: torch ops / C kernel = "
+                        f"{medians['torch ops', 'eager'] / medians['C kernel', 'eager']:.1f}x"
                     )
                 lookup.to("cpu")  # Module.to moves in place; the baselines below run on CPU
 

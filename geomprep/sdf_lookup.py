@@ -1,8 +1,9 @@
 """Batched signed-distance lookup in the objects' SDF grids, on the training device (torch).
 
 All objects' grids are stacked into one tensor (of bricks, below), so a query for E environments,
-each holding one object at its own pose, is a handful of tensor operations with no Python loop
-over environments:
+each holding one object at its own pose, is one pass over the points with no Python loop over
+environments: a C kernel on the CPU (geomprep/sdf_lookup_cpu.py), a handful of tensor
+operations on a GPU (which ``torch.compile`` fuses into the trainer's env step):
 
     lookup = SDFLookup.from_hdf5([f"data/processed/{n}.h5" for n in names], device="cuda")
     d = lookup.query(points_world, object_pos, object_quat, object_ids)   # (E, K) metres
@@ -18,15 +19,16 @@ Conventions (the data contract of README.md):
   outermost centres).  A point outside the cube gets the value of the closest voxel (its index
   clamped to the grid, the rule of Mosbach & Behnke 2022); this under-estimates the distance
   there, which is harmless for fingertips half a metre from the object.
+- A point with a NaN coordinate gets NaN.
 
 Storage: bricks.  Each grid is cut into cubes of 4 x 4 x 4 cells, and each brick stores the
 5 x 5 x 5 voxel centres at its cells' corners (the shared faces are stored twice), padded to 128
 values.  The 8 corners of any cell then lie in one brick, 31 values apart at most: one or two
 adjacent cache lines per query in float16, where a plain (R, R, R) array puts them on 4 lines
-up to R^2 values apart.  The gathers into GB-sized stacks are what a query costs on a CPU
-(16,384 x 5 fingertips in 78 grids of 200^3: 3.5 ms for the dense float32 gather, 1.2 ms for the
-float16 bricks).  The bricks hold 128 / 64 = 2x the values of the dense grid, so 78 objects at
-200^3 take 2.56 GB in float16 (the trainer's default) and 5.12 GB in float32.
+up to R^2 values apart.  The reads into GB-sized stacks are what a query costs on a CPU
+(16,384 x 5 fingertips in 78 grids of 200^3: 3.5 ms for the dense float32 gather alone, 1.2 ms
+for the float16 bricks).  The bricks hold 128 / 64 = 2x the values of the dense grid, so 78
+objects at 200^3 take 2.56 GB in float16 (the trainer's default) and 5.12 GB in float32.
 
 float16 rounds a stored value d by at most ``|d| * 2**-11`` (below float16's smallest normal,
 6.1e-5 m, by at most 2**-25 m), and interpolation is a convex combination, so a query moves by
@@ -47,16 +49,11 @@ import h5py
 import numpy as np
 import torch
 
+from geomprep import sdf_lookup_cpu
 from geomprep.errors import GeomprepError
 
 # Relative rounding error of float16 storage (half an ulp of an 11-bit significand).
 FLOAT16_RELATIVE_ERROR = 2.0**-11
-
-# Up to this many points per query, compiled code (the trainer's env under torch.compile) takes
-# the plain path, which the compiler fuses with the surrounding step; above it, the eager path
-# (its block-ordered gather; the compiled plain path gathers the 8 corners point by point and,
-# at 16,384 x 5 points in 78 grids, takes ~2x the eager time).
-_COMPILED_MAX_POINTS = 16384
 
 BRICK_CELLS = 4
 """Cells along each edge of a brick; a brick stores (BRICK_CELLS + 1)^3 voxel centres."""
@@ -65,7 +62,7 @@ BRICK_VALUES = 128
 # Offsets of a centre (i, j, k) of a brick (each in 0..4) within it: i * 25 + j * 5 + k.
 _BRICK_STRIDES = ((BRICK_CELLS + 1) ** 2, BRICK_CELLS + 1, 1)
 # Steps within a brick to a cell's 8 corners, dk slowest and di fastest, the order in which the
-# lerps consume them (z first, over contiguous halves).
+# lerps consume them (z first).  sdf_lookup_cpu.c has the same layout constants.
 _CORNER_STEPS = tuple(
     di * _BRICK_STRIDES[0] + dj * _BRICK_STRIDES[1] + dk
     for dk in (0, 1)
@@ -171,11 +168,6 @@ class SDFLookup(torch.nn.Module):
     bounds_min: torch.Tensor
     inv_voxel: torch.Tensor
     shift: torch.Tensor
-    corner_offsets: torch.Tensor
-
-    # Points per block of the corner gather (see _interpolate): a block's corner reads stay in
-    # L1/L2 while the block is gathered and interpolated.
-    _BLOCK = 128
 
     def __init__(
         self,
@@ -185,6 +177,7 @@ class SDFLookup(torch.nn.Module):
         dtype: torch.dtype = torch.float32,
         names: Sequence[str] | None = None,
         device: str | torch.device = "cpu",
+        kernel: str = "auto",
     ) -> None:
         """grids: the N objects' (R, R, R) grids, metres (an (N, R, R, R) array or any iterable
         of grids: they are bricked one at a time, so a generator keeps one dense grid in
@@ -192,10 +185,20 @@ class SDFLookup(torch.nn.Module):
 
         dtype: storage type, torch.float32 or torch.float16 (see module docstring).
         names: optional object names, ``names[i]`` being object id i.
+        kernel: how CPU queries run: ``"auto"``, the C kernel (sdf_lookup_cpu.py) where it
+        builds, else torch ops; ``"torch"``, always torch ops.  GPU queries are torch ops.
         """
         super().__init__()
         if dtype not in (torch.float32, torch.float16):
             raise GeomprepError(f"SDF lookup dtype {dtype}: use torch.float32 or torch.float16")
+        if kernel not in ("auto", "torch"):
+            raise GeomprepError(f"SDF lookup kernel {kernel!r}: use 'auto' or 'torch'")
+        # Built (or loaded) here, once, not while torch.compile traces a query.
+        self.use_cpu_kernel = (
+            kernel == "auto"
+            and torch.device(device).type == "cpu"
+            and sdf_lookup_cpu.kernel() is not None
+        )
         bounds = torch.as_tensor(np.asarray(bounds_min, dtype=np.float32)).reshape(-1, 3)
         n_obj = bounds.shape[0]
         voxel = torch.as_tensor(np.asarray(voxel_size, dtype=np.float32)).reshape(n_obj)
@@ -230,9 +233,6 @@ class SDFLookup(torch.nn.Module):
         self.register_buffer("inv_voxel", (1.0 / voxel).to(device))
         # u = p / voxel + shift puts voxel i's centre at u = i.
         self.register_buffer("shift", (-bounds / voxel[:, None] - 0.5).to(device))
-        self.register_buffer(
-            "corner_offsets", torch.tensor(_CORNER_STEPS, dtype=torch.long, device=device)
-        )
 
     @classmethod
     def from_hdf5(
@@ -240,12 +240,14 @@ class SDFLookup(torch.nn.Module):
         paths: Sequence[str | Path],
         dtype: torch.dtype = torch.float32,
         device: str | torch.device = "cpu",
+        kernel: str = "auto",
     ) -> SDFLookup:
         """Load ``sdf/grid`` and its attrs from processed object files, object id = list index.
 
         paths: ``data/processed/<name>.h5`` files (or stage files with an ``sdf`` group); all
         grids must have the same resolution.  Grids are read and bricked one at a time into the
         preallocated stack on ``device``, so peak host memory is one grid, not all of them.
+        dtype, device, kernel: as for the constructor.
         """
         if not paths:
             raise GeomprepError("no SDF files given: pass at least one processed .h5 file")
@@ -259,6 +261,7 @@ class SDFLookup(torch.nn.Module):
             dtype=dtype,
             names=[Path(p).stem for p in paths],
             device=device,
+            kernel=kernel,
         )
 
     @property
@@ -297,64 +300,52 @@ class SDFLookup(torch.nn.Module):
 
         points_world: (E, K, 3) metres; object_pos: (E, 3) metres, the object frame's origin
         (COM) in the world; object_quat: (E, 4) (w, x, y, z), object-to-world rotation;
-        object_ids: (E,) long, index into the stacked grids.
+        object_ids: (E,) integer, index into the stacked grids.  A point with a NaN
+        coordinate gets NaN.
         """
-        small = points_world.shape[0] * points_world.shape[1] <= _COMPILED_MAX_POINTS
-        if torch.compiler.is_compiling() and small:
-            return self._query_for_compiler(points_world, object_pos, object_quat, object_ids)
-        return self._query_eager(points_world, object_pos, object_quat, object_ids)
+        if self.use_cpu_kernel and points_world.device.type == "cpu":
+            return torch.ops.geomprep.sdf_query_cpu(
+                self.bricks, self.resolution, points_world, object_pos, object_quat, object_ids,
+                self.inv_voxel, self.shift,
+            )  # fmt: skip
+        return self._query_torch(points_world, object_pos, object_quat, object_ids)
 
     forward = query  # calling the module is querying it
 
-    @torch.compiler.disable
-    def _query_eager(
-        self,
-        points_world: torch.Tensor,
-        object_pos: torch.Tensor,
-        object_quat: torch.Tensor,
-        object_ids: torch.Tensor,
-    ) -> torch.Tensor:
-        """``query`` for eager mode (also called, untraced, from compiled code for large
-        batches)."""
-        ids = object_ids.long()
-        n_env, k = points_world.shape[:2]
-        # Per env, the affine map world offset -> voxel coordinates: u = A (p - pos) + shift with
-        # A = R^T / voxel.  Everything below runs on (.., K, E) planes whose contiguous inner
-        # dimension is the E envs: in an (E, K, 3) layout the inner sizes are 3 and K, which
-        # torch's CPU kernels cannot vectorise (~5x slower per element).
-        a = self._world_to_voxel(object_quat, ids)[:, :, None]  # (3, 3, 1, E)
-        # One pass writing the permuted (3, K, E) layout (an op's output takes its inputs').
-        d = torch.empty(points_world.shape[::-1], dtype=torch.float32, device=points_world.device)
-        torch.sub(points_world.permute(2, 1, 0), object_pos.t()[:, None], out=d)
-        shift = self.shift.t().index_select(1, ids)[:, None]  # (3, 1, E)
-        buf, u = self._coordinate_buffer(n_env, k, points_world.device)
-        torch.addcmul(shift, a[:, 0], d[0], out=u)
-        u.addcmul_(a[:, 1], d[1]).addcmul_(a[:, 2], d[2])
-        return self._interpolate(buf, ids, k)
+    def query_local(self, local: torch.Tensor, object_ids: torch.Tensor) -> torch.Tensor:
+        """Signed distance (E, K) float32, metres, at object-frame points local (E, K, 3)."""
+        n_env = local.shape[0]
+        identity = local.new_tensor([1.0, 0.0, 0.0, 0.0]).expand(n_env, 4)
+        return self.query(local, local.new_zeros(n_env, 3), identity, object_ids)
 
-    def _query_for_compiler(
+    def _query_torch(
         self,
         points_world: torch.Tensor,
         object_pos: torch.Tensor,
         object_quat: torch.Tensor,
         object_ids: torch.Tensor,
     ) -> torch.Tensor:
-        """``query`` written plainly, for ``torch.compile`` (which fuses it into one loop; the
-        eager path's in-place and ``out=`` tricks would break its graph).  Same rule, same
-        result to float32 rounding."""
+        """``query`` in torch ops: on a GPU (where ``torch.compile`` fuses it into the env step)
+        and on a CPU without the C kernel.  Same rule as sdf_lookup_cpu.c, to float32 rounding."""
         r = self.resolution
         ids = object_ids.long()
-        local = (points_world - object_pos[:, None]) @ quat_to_matrix(object_quat.float())
+        local = (points_world.float() - object_pos.float()[:, None]) @ quat_to_matrix(
+            object_quat.float()
+        )
         u = local * self.inv_voxel[ids][:, None, None] + self.shift[ids][:, None, :]
+        nan = u.isnan().any(-1)
+        # Outside the cube (more than half a voxel beyond the outer centres) a point snaps to
+        # the closest voxel; in the outer half voxel the coordinate is clamped to the outer
+        # centres, and the cell stays inside the grid (t is then 0 or 1).
         outside = ((u < -0.5) | (u > r - 0.5)).any(-1, keepdim=True)
-        u = u.clamp(0.0, r - 1.0)
-        base = u.floor().clamp(0.0, r - 2.0)
-        t = u - base
+        u = u.nan_to_num(0.0).clamp(0.0, r - 1.0)
+        lower = u.floor().clamp(max=r - 2.0)
+        t = u - lower
         t = torch.where(outside, t.round(), t)
-        b = base.long()
+        cell = lower.long()
         nb = self.bricks_per_axis
-        brick = b // BRICK_CELLS
-        within = b - BRICK_CELLS * brick
+        brick = cell // BRICK_CELLS
+        within = cell - BRICK_CELLS * brick
         si, sj, sk = _BRICK_STRIDES
         flat = (
             ((ids[:, None] * nb + brick[..., 0]) * nb + brick[..., 1]) * nb + brick[..., 2]
@@ -362,136 +353,9 @@ class SDFLookup(torch.nn.Module):
         values = self.bricks.view(-1)
         corner = [values[flat + step].float() for step in _CORNER_STEPS]
         tx, ty, tz = t.unbind(-1)
-        c = [torch.lerp(corner[i], corner[i + 4], tz) for i in range(4)]  # (di, dj)
+        c = [torch.lerp(corner[i], corner[i + 4], tz) for i in range(4)]  # (dj, di)
         c = [torch.lerp(c[i], c[i + 2], ty) for i in range(2)]  # di
-        return torch.lerp(c[0], c[1], tx)
-
-    def _world_to_voxel(self, object_quat: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
-        """(3, 3, E): R^T / voxel per env, R from the (w, x, y, z) quaternions (E, 4).
-
-        quat_to_matrix's formula on (E,) rows, normalising by 2 / |q|^2 (a few ops on rows of
-        E floats instead of ~40 on (E,) slices and a stack of (E, 3, 3)).
-        """
-        q = object_quat.float().t()
-        w, x, y, z = q
-        sq = q * q
-        xx, yy, zz = sq[1], sq[2], sq[3]
-        s = 2.0 / (sq[0] + xx + yy + zz)  # (a dim-0 sum over 4 rows is not vectorised)
-        xy, xz, yz = x * y, x * z, y * z
-        wx, wy, wz = w * x, w * y, w * z
-        # Row c, column j of R^T is R[j, c].
-        a = torch.stack(
-            [yy + zz, xy + wz, xz - wy, xy - wz, xx + zz, yz + wx, xz + wy, yz - wx, xx + yy]
-        )
-        a.mul_(s)
-        a[::4].neg_().add_(1.0)  # the diagonal: 1 - s (..)
-        return a.mul_(self.inv_voxel.index_select(0, ids)).view(3, 3, -1)
-
-    def query_local(self, local: torch.Tensor, object_ids: torch.Tensor) -> torch.Tensor:
-        """Signed distance (E, K) float32, metres, at object-frame points local (E, K, 3)."""
-        ids = object_ids.long()
-        buf, u = self._coordinate_buffer(local.shape[0], local.shape[1], local.device)
-        # Continuous voxel coordinates, voxel i's centre at u = i: u = local / voxel + shift,
-        # written straight into the permuted (3, K, E) layout.
-        torch.addcmul(
-            self.shift.t().index_select(1, ids)[:, None],
-            local.permute(2, 1, 0),
-            self.inv_voxel.index_select(0, ids),
-            out=u,
-        )
-        return self._interpolate(buf, ids, local.shape[1])
-
-    def _coordinate_buffer(
-        self, n_env: int, k: int, device: torch.device
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """A (3, P) float32 buffer, P = E * K rounded up to whole _BLOCKs, and its (3, K, E) view.
-
-        The caller writes the voxel coordinates of its E x K points into the view; the padding
-        past E * K holds zeros (a valid coordinate, so its gathers stay in range) and is dropped
-        at the end.
-        """
-        n = n_env * k
-        padded = -(-n // self._BLOCK) * self._BLOCK
-        buf = torch.empty(3, padded, dtype=torch.float32, device=device)
-        if padded > n:
-            buf[:, n:].zero_()
-        return buf, buf[:, :n].view(3, k, n_env)
-
-    def _interpolate(self, u: torch.Tensor, ids: torch.Tensor, k: int) -> torch.Tensor:
-        """Trilinear lookup at voxel coordinates u (3, P) of objects ids (E,): (E, K) float32.
-
-        u is _coordinate_buffer's buffer, points in (K, E) order then padding; it is overwritten.
-        """
-        r, block = self.resolution, self._BLOCK
-        n_env = ids.shape[0]
-        n = n_env * k
-        n_blocks = u.shape[1] // block
-        if n == 0:  # (torch.aminmax refuses an empty tensor)
-            return torch.zeros(n_env, k, dtype=torch.float32, device=u.device)
-        # Outside the cube (more than half a voxel beyond the outer centres) a point snaps to the
-        # closest voxel instead of interpolating; in the outer half voxel the coordinate is
-        # clamped to the outer centres.  On CPU one min/max pass tells whether any point needs
-        # either (rare: fingertips are near the object) and the clamps and the mask are skipped
-        # otherwise; on a GPU that check would be a host sync, so both are always applied there.
-        outside: torch.Tensor | None = None
-        clamp = True
-        if u.device.type == "cpu":
-            lo, hi = (float(v) for v in torch.aminmax(u))
-            clamp = lo < 0.0 or hi >= r - 1.0
-            if lo < -0.5 or hi > r - 0.5:
-                outside = ((u < -0.5) | (u > r - 0.5)).any(0)
-        else:
-            outside = ((u < -0.5) | (u > r - 0.5)).any(0)
-        # Lower cell corner, clamped so that the cell stays inside the grid; t in [0, 1] is the
-        # fraction across the cell (0 or 1 where u was clamped to the outer voxel centres).
-        # Without clamping base = floor(u) <= r - 2 and t = u - base < 1 already.
-        base = u.floor()
-        t = u.sub_(base) if not clamp else u.sub_(base.clamp_(0.0, r - 2.0)).clamp_(0.0, 1.0)
-        if outside is not None:
-            t = torch.where(outside, t.round(), t)
-        # Flat index in the brick stack: brick (base // 4) and centre within it (base % 4) on
-        # each axis, c * stride + (c // 4) * (brick stride - 4 * stride) summed over the axes.
-        # int32 where it fits (half the index traffic of int64).
-        index_dtype = torch.int32 if self.bricks.numel() < 2**31 else torch.long
-        nb = self.bricks_per_axis
-        per_object = nb**3 * BRICK_VALUES
-        strides = _BRICK_STRIDES
-        brick_strides = (nb * nb * BRICK_VALUES, nb * BRICK_VALUES, BRICK_VALUES)
-        coarse = torch.mul(base, 1.0 / BRICK_CELLS).floor_()
-        if per_object > 2**24:
-            # Below that the index within one object's bricks is an integer exact in float32
-            # (and so is every partial sum): passes over one row, converted once at the end.
-            base, coarse = base.to(index_dtype), coarse.to(index_dtype)
-        flat = torch.mul(base[2], strides[2])
-        for axis in (1, 0):
-            flat.add_(base[axis], alpha=strides[axis])
-        for axis in (2, 1, 0):
-            flat.add_(coarse[axis], alpha=brick_strides[axis] - BRICK_CELLS * strides[axis])
-        flat = flat.to(index_dtype)
-        del base, coarse
-        flat[:n].view(k, n_env).add_((ids.to(index_dtype) * per_object)[None, :])
-        # Gather in env-major order: an env's K fingertips are close together in one object's
-        # grid and share its bricks, lines and pages, while consecutive points in (K, E) order
-        # belong to different objects (16,384 x 5 in 78 grids, float16: 1.2 ms instead of
-        # 2.1 ms for the gather alone; the arithmetic above stays in the vectorisable layout).
-        flat, t = _env_major(flat, n_env, k), _env_major(t, n_env, k)
-        # Corner indices block by block, (n_blocks, 8, block): the gather then reads the 8
-        # corners of one block's 128 points back to back, while their cache lines are still in
-        # L1/L2.  Corner-major order (8, P) instead walks all E * K points 8 times and fetches
-        # each line again from L3 or memory (~1.3x the gather's time at 16,384 x 5 on the 2-core
-        # EPYC).  The same order works unchanged on a GPU.
-        idx = flat.view(n_blocks, 1, block) + self.corner_offsets.to(index_dtype)[:, None]
-        corners = self.bricks.view(-1).index_select(0, idx.view(-1)).float()
-        del idx
-        # Trilinear as three lerps (z, then y, then x) over contiguous halves of each block, the
-        # first two written over their first input: every fresh intermediate would compete with
-        # the grid's cache lines for the L3.
-        t = t.view(3, n_blocks, 1, block)
-        c = corners.view(n_blocks, 2, 4, block)
-        c = torch.lerp(c[:, 0], c[:, 1], t[2], out=c[:, 0])  # (n_blocks, 4, block): dj, di
-        c = torch.lerp(c[:, :2], c[:, 2:], t[1], out=c[:, :2])  # (n_blocks, 2, block): di
-        c = torch.lerp(c[:, 0], c[:, 1], t[0, :, 0])  # (n_blocks, block), contiguous
-        return c.view(-1)[:n].view(n_env, k)
+        return torch.lerp(c[0], c[1], tx).masked_fill(nan, float("nan"))
 
 
 def _read_sdf(path: str | Path, read: Callable[[h5py.Group], Any]) -> Any:
@@ -503,17 +367,6 @@ def _read_sdf(path: str | Path, read: Callable[[h5py.Group], Any]) -> Any:
         raise GeomprepError(
             f"cannot read an SDF grid from {path} ({err}): build it with `geomprep sdf`"
         ) from err
-
-
-def _env_major(x: torch.Tensor, n_env: int, k: int) -> torch.Tensor:
-    """x (..., P) with its first E * K points in (K, E) order, then padding: a copy with them in
-    (E, K) order (the padding as it was)."""
-    n = n_env * k
-    lead = x.shape[:-1]
-    out = torch.empty_like(x)
-    out[..., :n].view(*lead, n_env, k).copy_(x[..., :n].view(*lead, k, n_env).transpose(-1, -2))
-    out[..., n:] = x[..., n:]
-    return out
 
 
 def naive_query(

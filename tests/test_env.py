@@ -182,16 +182,16 @@ def test_compiled_env_matches_eager(builtin_data: Config) -> None:
         assert torch.equal(b["done"], a["done"])
 
 
-def test_compile_failure_falls_back_to_eager(builtin_data: Config, monkeypatch) -> None:  # noqa: ANN001
+def test_compile_failure_falls_back_to_eager(builtin_data: Config) -> None:
     # A machine without a working C++ compiler: the env warns once per function and runs eagerly.
     import torch._inductor.config as inductor
 
-    monkeypatch.setattr(inductor.cpp, "cxx", ("/nonexistent-c++",))
-    monkeypatch.setattr(inductor, "fx_graph_cache", False)
     cfg = load_env_config(num_envs=3, objects="builtin_box", representation="com",
                           data_dir=builtin_data.data_dir)
     environment = GraspEnv(dataclasses.replace(cfg, compile=True))
-    with pytest.warns(UserWarning, match="torch.compile failed"):
+    # inductor's own patch (monkeypatch's undo leaves fx_graph_cache unreadable for later tests).
+    broken = {"cpp.cxx": ("/nonexistent-c++",), "fx_graph_cache": False}
+    with inductor.patch(broken), pytest.warns(UserWarning, match="torch.compile failed"):
         rollout = environment.rollout(2)
     assert torch.isfinite(rollout["next", "reward"]).all()
     environment.close()

@@ -1,6 +1,7 @@
 """Tests for geomprep.sdf_lookup: exactness near the surface against open3d and an analytic box,
 object poses (rotation + translation), the out-of-grid rule, mixed object ids in one batch, the
-float16 error bound and the HDF5 loader."""
+float16 error bound and the HDF5 loader; both query kernels (the C kernel of sdf_lookup_cpu and
+torch ops) against the naive reference, eager and under torch.compile."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ import torch
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from geomprep import sdf_lookup_cpu
 from geomprep.errors import GeomprepError
 from geomprep.sdf import SDFGrid, compute_sdf, voxel_centers
 from geomprep.sdf_lookup import (
@@ -32,13 +34,19 @@ REQUIRED_ERROR_M = 1e-3
 BOX_HALF = np.array([0.08, 0.05, 0.02])
 
 
-def _lookup(*sdfs: SDFGrid, dtype: torch.dtype = torch.float32) -> SDFLookup:
-    return SDFLookup(
+KERNELS = ["auto", "torch"]  # the C kernel on this CPU, and torch ops (the GPU path)
+
+
+def _lookup(*sdfs: SDFGrid, dtype: torch.dtype = torch.float32, kernel: str = "auto") -> SDFLookup:
+    lookup = SDFLookup(
         np.stack([s.grid for s in sdfs]),
         np.stack([s.bounds_min for s in sdfs]),
         [s.voxel_size for s in sdfs],
         dtype=dtype,
+        kernel=kernel,
     )
+    assert lookup.use_cpu_kernel == (kernel == "auto")
+    return lookup
 
 
 def _pose(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -89,8 +97,14 @@ def test_quaternion_convention() -> None:
     np.testing.assert_allclose(quat_to_matrix(torch.tensor(quat)).numpy(), _pose(3)[0], atol=1e-6)
 
 
-def test_box_rotated_translated_matches_analytic(box: SDFGrid) -> None:
-    lookup = _lookup(box)
+def test_cpu_kernel_builds() -> None:
+    # The tests of kernel "auto" below would silently test the torch path without it.
+    assert sdf_lookup_cpu.kernel() is not None, "no C compiler: install gcc (see README)"
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_box_rotated_translated_matches_analytic(box: SDFGrid, kernel: str) -> None:
+    lookup = _lookup(box, kernel=kernel)
     rot, pos, quat = _pose(1)
     rng = np.random.default_rng(0)
     # Points within 3 cm of the box, inside and out, placed in the world by the pose.
@@ -146,8 +160,9 @@ def test_ycb_rotated_matches_open3d() -> None:
     assert np.max(err) <= 2 * REQUIRED_ERROR_M
 
 
-def test_out_of_grid_returns_closest_voxel(sphere: SDFGrid) -> None:
-    lookup = _lookup(sphere)
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_out_of_grid_returns_closest_voxel(sphere: SDFGrid, kernel: str) -> None:
+    lookup = _lookup(sphere, kernel=kernel)
     r, extent = sphere.grid.shape[0], float(sphere.bounds_max[0])
     c = voxel_centers(r, extent)
     local = np.array([[2.0, 0.001, -0.031], [-0.5, 0.5, 0.4], [0.001, c[7] + 0.001, 0.151]])
@@ -166,11 +181,12 @@ def test_out_of_grid_returns_closest_voxel(sphere: SDFGrid) -> None:
     )
 
 
-def test_batched_mixed_ids_match_naive(box: SDFGrid) -> None:
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_batched_mixed_ids_match_naive(box: SDFGrid, kernel: str) -> None:
     # One stack needs one resolution: a second object on the box's grid.
     mesh = trimesh.creation.icosphere(subdivisions=4, radius=0.05)
     small = compute_sdf(mesh.vertices, mesh.faces, resolution=80, extent=0.2)
-    lookup = _lookup(box, small)
+    lookup = _lookup(box, small, kernel=kernel)
     rng = np.random.default_rng(0)
     n_env, k = 64, 5
     ids = rng.integers(0, 2, n_env)
@@ -192,18 +208,11 @@ def test_batched_mixed_ids_match_naive(box: SDFGrid) -> None:
     )
     # float32 pose arithmetic moves points by ~1e-7 m; the field is 1-Lipschitz.
     np.testing.assert_allclose(got.numpy(), expect, atol=2e-6)
-    # The plain code path that torch.compile traces (run eagerly here) follows the same rule.
-    plain = lookup._query_for_compiler(
-        torch.tensor(world, dtype=torch.float32),
-        torch.tensor(pos, dtype=torch.float32),
-        torch.tensor(quats, dtype=torch.float32),
-        torch.tensor(ids),
-    )
-    np.testing.assert_allclose(plain.numpy(), expect, atol=2e-6)
 
 
-def test_float16_error_bound(box: SDFGrid) -> None:
-    full, half = _lookup(box), _lookup(box, dtype=torch.float16)
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_float16_error_bound(box: SDFGrid, kernel: str) -> None:
+    full, half = _lookup(box, kernel=kernel), _lookup(box, dtype=torch.float16, kernel=kernel)
     assert half.nbytes() * 2 == full.nbytes()
     rng = np.random.default_rng(1)
     local = torch.tensor(rng.uniform(-0.2, 0.2, (1, 50000, 3)), dtype=torch.float32)
@@ -233,9 +242,10 @@ def test_from_hdf5_roundtrip(tmp_path: Path, box: SDFGrid) -> None:
     np.testing.assert_allclose(lookup.inv_voxel.numpy(), 1 / box.voxel_size, rtol=1e-6)
 
 
-def test_query_input_layouts_and_dtypes(box: SDFGrid) -> None:
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_query_input_layouts_and_dtypes(box: SDFGrid, kernel: str) -> None:
     # float64, non-contiguous and int32 inputs give the float32 result; inputs are not modified.
-    lookup = _lookup(box)
+    lookup = _lookup(box, kernel=kernel)
     rng = np.random.default_rng(2)
     n_env, k = 33, 4
     quats = torch.tensor(Rotation.random(n_env, random_state=2).as_quat()[:, [3, 0, 1, 2]])
@@ -261,13 +271,14 @@ def test_query_input_layouts_and_dtypes(box: SDFGrid) -> None:
     np.testing.assert_allclose(ref.numpy(), expect, atol=2e-6)
 
 
+@pytest.mark.parametrize("kernel", KERNELS)
 @pytest.mark.parametrize("r", [2, 9, 10, 12, 13])
-def test_bricks_hold_the_grid(r: int) -> None:
+def test_bricks_hold_the_grid(r: int, kernel: str) -> None:
     # R - 1 cells a multiple of the brick size (9, 13) or not (the last brick is padded); the
     # dense grid comes back exactly, and every cell's lookup matches the naive one on it.
     rng = np.random.default_rng(r)
     grids = rng.normal(size=(2, r, r, r)).astype(np.float32)
-    lookup = SDFLookup((g for g in grids), np.full((2, 3), -0.5), [1.0 / r] * 2)
+    lookup = SDFLookup((g for g in grids), np.full((2, 3), -0.5), [1.0 / r] * 2, kernel=kernel)
     assert lookup.bricks.shape == (2, *(bricks_per_axis(r),) * 3, 128)
     for n in range(2):
         np.testing.assert_array_equal(lookup.grid(n).numpy(), grids[n])
@@ -289,11 +300,15 @@ def test_bad_grids_are_refused() -> None:
         SDFLookup([cube], bounds, voxel)
 
 
-@pytest.mark.parametrize("n_env, k", [(1, 1), (3, 5), (129, 1), (300, 5)])
-def test_block_padding_and_outer_centres_match_naive(sphere: SDFGrid, n_env: int, k: int) -> None:
-    # Batches of E * K points that are not whole gather blocks (the padding is dropped), with
-    # exact outer voxel centres (the upper one needs the clamped cell) among interior points.
-    lookup = _lookup(sphere)
+@pytest.mark.parametrize("kernel", KERNELS)
+@pytest.mark.parametrize("n_env, k", [(1, 1), (3, 5), (129, 1), (300, 5), (70, 200)])
+def test_partial_blocks_and_outer_centres_match_naive(
+    sphere: SDFGrid, n_env: int, k: int, kernel: str
+) -> None:
+    # Batches that are not whole blocks or parallel tasks of the C kernel (128 points, 64 envs;
+    # 200 points per env overflow a block within an env), with exact outer voxel centres (the
+    # upper one needs the clamped cell) among interior points.
+    lookup = _lookup(sphere, kernel=kernel)
     r = sphere.grid.shape[0]
     c = voxel_centers(r, float(sphere.bounds_max[0]))
     rng = np.random.default_rng(n_env * 10 + k)
@@ -308,20 +323,58 @@ def test_block_padding_and_outer_centres_match_naive(sphere: SDFGrid, n_env: int
     assert abs(float(got[0, 0]) - float(sphere.grid[r - 1, 0, r - 1])) <= 2e-6
 
 
-def test_interior_fast_path_matches_clamped_path(sphere: SDFGrid) -> None:
-    # A batch strictly inside the outer centres skips the clamps on CPU; one far point in the
-    # same batch forces the clamped, snapped path for all: interior values must be identical.
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_nan_points_give_nan(sphere: SDFGrid, kernel: str) -> None:
+    # A diverged simulation's NaN fingertip must not read a wrong voxel (or out of the stack).
+    lookup = _lookup(sphere, kernel=kernel)
+    local = torch.full((3, 2, 3), 0.03)
+    local[1, 0, 2] = float("nan")
+    got = lookup.query_local(local, torch.zeros(3, dtype=torch.long))
+    assert torch.isnan(got[1, 0]) and torch.isnan(got).sum() == 1
+    expect = naive_query(
+        sphere.grid[None], sphere.bounds_min[None], [sphere.voxel_size], np.full((1, 1, 3), 0.03),
+        np.zeros(1),
+    )  # fmt: skip
+    np.testing.assert_allclose(got[0].numpy(), np.full(2, expect[0, 0]), atol=2e-6)
+
+
+def test_cpu_kernel_refuses_unknown_object_ids(sphere: SDFGrid) -> None:
     lookup = _lookup(sphere)
-    rng = np.random.default_rng(4)
-    inner = torch.tensor(rng.uniform(-0.1, 0.1, (200, 5, 3)), dtype=torch.float32)
-    mixed = torch.cat([inner, torch.full((1, 5, 3), 3.0)])
-    ids = torch.zeros(201, dtype=torch.long)
-    fast = lookup.query_local(inner, ids[:200])
-    clamped = lookup.query_local(mixed, ids)
-    assert torch.equal(fast, clamped[:200])
-    # The far env gets the corner voxel's value (the closest-voxel rule).
-    r = sphere.grid.shape[0]
-    np.testing.assert_allclose(clamped[200].numpy(), sphere.grid[r - 1, r - 1, r - 1], atol=1e-7)
+    with pytest.raises(GeomprepError, match="object id outside 0..0"):
+        lookup.query_local(torch.zeros(4, 5, 3), torch.tensor([0, 1, 0, -1]))
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_compiled_query_matches_eager(box: SDFGrid, kernel: str) -> None:
+    # The trainer calls the lookup inside its torch.compile'd step: the C kernel is a custom op
+    # (no graph break: fullgraph), the torch path is traced and fused.
+    lookup = _lookup(box, kernel=kernel)
+    rng = np.random.default_rng(5)
+    n_env = 40
+    quats = torch.tensor(Rotation.random(n_env, random_state=5).as_quat()[:, [3, 0, 1, 2]])
+    world = torch.tensor(rng.uniform(-0.2, 0.2, (n_env, 5, 3)))
+    pos = torch.tensor(rng.uniform(-0.1, 0.1, (n_env, 3)))
+    args = (world.float(), pos.float(), quats.float(), torch.tensor(rng.integers(0, 1, n_env)))
+    compiled = torch.compile(lookup.query, fullgraph=True, dynamic=False)
+    np.testing.assert_allclose(compiled(*args).numpy(), lookup.query(*args).numpy(), atol=1e-6)
+
+
+def test_missing_compiler_falls_back_to_torch(
+    box: SDFGrid, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
+    sdf_lookup_cpu.kernel.cache_clear()
+    try:
+        with pytest.warns(UserWarning, match="cannot build the SDF lookup's CPU kernel"):
+            lookup = SDFLookup(box.grid[None], box.bounds_min[None], [box.voxel_size])
+        assert not lookup.use_cpu_kernel and not list(tmp_path.rglob("*.so"))
+        local = np.array([[[0.01, 0.02, 0.03]]])
+        got = lookup.query_local(torch.tensor(local, dtype=torch.float32), torch.zeros(1))
+        expect = naive_query(box.grid[None], box.bounds_min[None], [box.voxel_size], local, [0])
+        np.testing.assert_allclose(got.numpy(), expect, atol=2e-6)
+    finally:
+        sdf_lookup_cpu.kernel.cache_clear()
 
 
 def test_empty_batch(sphere: SDFGrid) -> None:
