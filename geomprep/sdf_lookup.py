@@ -28,7 +28,7 @@ adjacent cache lines per query in float16, where a plain (R, R, R) array puts th
 up to R^2 values apart.  The reads into GB-sized stacks are what a query costs on a CPU
 (16,384 x 5 fingertips in 78 grids of 200^3: 3.5 ms for the dense float32 gather alone, 1.2 ms
 for the float16 bricks).  The bricks hold 128 / 64 = 2x the values of the dense grid, so 78
-objects at 200^3 take 2.56 GB in float16 (the trainer's default) and 5.12 GB in float32.
+objects at 200^3 take 2.50 GB in float16 (the trainer's default) and 4.99 GB in float32.
 
 float16 rounds a stored value d by at most ``|d| * 2**-11`` (below float16's smallest normal,
 6.1e-5 m, by at most 2**-25 m), and interpolation is a convex combination, so a query moves by
