@@ -13,9 +13,6 @@ from scipy.spatial.transform import Rotation
 from geomprep.errors import GeomprepError
 from geomprep.superquadric import (
     MeshOracle,
-    _radial_canonical,
-    _radial_with_grad,
-    _SurfaceOracle,
     fit_quality,
     fit_superquadric,
     implicit,
@@ -27,6 +24,8 @@ from geomprep.superquadric import (
     to_canonical,
     volume_iou,
 )
+from geomprep.superquadric.fit import _SurfaceOracle
+from geomprep.superquadric.geometry import _radial_canonical, _radial_with_grad
 from tests.conftest import ycb_mesh
 
 

@@ -1,30 +1,15 @@
-"""Superquadric representation and robust recovery from surface points (EMS).
-
-Data contract: ``params`` is an (11,) float array
-
-    [eps1, eps2, a1, a2, a3, rx, ry, rz, tx, ty, tz]
-
-with shape exponents ``eps1`` (latitude / z profile) and ``eps2`` (longitude / xy profile) in
-[0.1, 2], semi-axes ``a1, a2, a3`` in metres (> 0), the rotation ``R`` as extrinsic xyz Euler
-angles in radians (``scipy Rotation.from_euler("xyz", [rx, ry, rz])``) and the translation ``t``
-in metres. A canonical point ``p`` maps to the object frame as ``R @ p + t``. The canonical
-inside-outside function is
-
-    F(x) = (|x/a1|^(2/eps2) + |y/a2|^(2/eps2))^(eps2/eps1) + |z/a3|^(2/eps1),
-
-with the surface at F = 1, inside F < 1. All power laws are evaluated in log space so that
-exponents up to 2/0.1 = 20 neither overflow nor produce NaN at the centre or on the axes.
+"""Robust recovery of a superquadric from surface points (EMS), with an optional surface term.
 
 Fitting follows the idea of EMS (Liu et al., CVPR 2022): maximum likelihood of the points under
 a Gaussian on the radial distance to the surface mixed with a uniform outlier density, solved by
 EM with a bounded least-squares M-step, plus a "switching" step that jumps between parameter
 sets describing the same or similar shapes to escape local minima. The implementation here is
-written from the paper's description, not from the reference code.
+written from the paper's description, not from the reference code. Parameters follow the data
+contract in :mod:`.geometry`.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import time
 from collections.abc import Callable
@@ -32,193 +17,25 @@ from typing import Any, TypeVar
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 from threadpoolctl import threadpool_limits
 
-from geomprep.config import SQParams
 from geomprep.errors import GeomprepError
+from geomprep.superquadric.geometry import (
+    EPS_MAX,
+    EPS_MIN,
+    _box_surface_points,
+    _check_points,
+    _radial_canonical,
+    _radial_with_grad,
+    _surface_canonical,
+    _surface_canonical_with_grad,
+    make_params,
+    sample_surface,
+)
 
 T = TypeVar("T")
 
-# Bump when the output for the same input changes (the pipeline's cache key uses it).
-VERSION = 2
-
-EPS_MIN = 0.1
-EPS_MAX = 2.0
 MIN_POINTS = 10
-# exp() of anything above this overflows float64; clip so implicit() stays finite far away.
-_LOG_MAX = 700.0
-
-
-# --------------------------------------------------------------------------------------------
-# Parameter handling
-# --------------------------------------------------------------------------------------------
-
-
-def _check_params(params: np.ndarray) -> np.ndarray:
-    p = np.asarray(params, dtype=np.float64).reshape(-1)
-    if p.shape != (11,) or not np.all(np.isfinite(p)):
-        raise GeomprepError(
-            "superquadric params must be 11 finite numbers "
-            "(eps1, eps2, a1, a2, a3, euler xyz, t): check the stored parameters"
-        )
-    if np.any(p[2:5] <= 0) or np.any(p[:2] <= 0):
-        raise GeomprepError(
-            "superquadric exponents and semi-axes must be positive: check the stored parameters"
-        )
-    return p
-
-
-def _check_points(points: np.ndarray, what: str = "points") -> np.ndarray:
-    x = np.asarray(points, dtype=np.float64)
-    if x.ndim != 2 or x.shape[1] != 3:
-        raise GeomprepError(f"{what} must have shape (N, 3), got {x.shape}: pass an (N, 3) array")
-    if not np.all(np.isfinite(x)):
-        raise GeomprepError(f"{what} contain NaN or inf: drop or repair them before fitting")
-    return x
-
-
-def make_params(
-    eps: tuple[float, float] | np.ndarray,
-    axes: tuple[float, float, float] | np.ndarray,
-    rotation: np.ndarray | None = None,
-    translation: np.ndarray | None = None,
-) -> np.ndarray:
-    """Assemble (11,) params from exponents (2,), semi-axes (3,) m, rotation (3, 3), t (3,) m."""
-    rot = np.eye(3) if rotation is None else np.asarray(rotation, dtype=np.float64)
-    t = np.zeros(3) if translation is None else np.asarray(translation, dtype=np.float64)
-    euler = Rotation.from_matrix(rot).as_euler("xyz")
-    return np.concatenate([np.asarray(eps, float), np.asarray(axes, float), euler, t])
-
-
-def rotation_matrix(params: np.ndarray) -> np.ndarray:
-    """Rotation (3, 3) of ``params`` (columns = canonical axes in the object frame)."""
-    return Rotation.from_euler("xyz", np.asarray(params, dtype=np.float64)[5:8]).as_matrix()
-
-
-def to_canonical(params: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Object-frame points (N, 3) m -> canonical frame (N, 3) m: R^T (p - t)."""
-    p = np.asarray(params, dtype=np.float64)
-    return (np.asarray(points, dtype=np.float64) - p[8:11]) @ rotation_matrix(p)
-
-
-# --------------------------------------------------------------------------------------------
-# Canonical-frame geometry (log space)
-# --------------------------------------------------------------------------------------------
-
-
-def _log_f(x: np.ndarray, e1: float, e2: float, a: np.ndarray) -> np.ndarray:
-    """log F for canonical points (N, 3); -inf at the centre, never NaN."""
-    with np.errstate(divide="ignore"):
-        la = np.log(np.abs(x) / a)  # -inf exactly on a coordinate plane
-    lxy = np.logaddexp((2.0 / e2) * la[:, 0], (2.0 / e2) * la[:, 1]) * (e2 / e1)
-    return np.logaddexp(lxy, (2.0 / e1) * la[:, 2])
-
-
-def _surface_radius(x: np.ndarray, e1: float, e2: float, a: np.ndarray) -> tuple[np.ndarray, ...]:
-    """|x| and the distance (N,) from the centre to the surface along the ray through x.
-
-    F is homogeneous of degree 2/eps1, so on the unit direction u the surface radius is
-    F(u)^(-eps1/2); evaluating F on u (not on x) keeps the exponent bounded, so the radial
-    distance is well defined arbitrarily close to the centre. At the exact centre the ray is
-    undefined; the smallest semi-axis is used.
-    """
-    r = np.linalg.norm(x, axis=1)
-    ok = r > 0
-    u = np.where(ok[:, None], x / np.where(ok, r, 1.0)[:, None], 0.0)
-    rs = np.exp(-0.5 * e1 * _log_f(u, e1, e2, a))
-    rs = np.where(ok, rs, a.min())
-    return r, rs
-
-
-def _radial_canonical(x: np.ndarray, e1: float, e2: float, a: np.ndarray) -> np.ndarray:
-    r, rs = _surface_radius(x, e1, e2, a)
-    return np.abs(r - rs)
-
-
-# Floor for |u_i| inside logs: log stays finite (so 0 * log never makes NaN) while the softmax
-# weights of such coordinates underflow to exactly 0, which is their true limit.
-_U_FLOOR = 1e-150
-
-
-def _radial_with_grad(
-    x: np.ndarray, e1: float, e2: float, a: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Radial distance (N,) and its exact derivatives for canonical points x (N, 3).
-
-    Returns d, dd/d(eps1, eps2) (N, 2), dd/d(a1, a2, a3) (N, 3), dd/dx (N, 3). Works on the unit
-    direction u = x/|x| (F is homogeneous), with log F written as nested log-sum-exps whose
-    softmax weights give the chain rule; see the module docstring for F.
-    """
-    r = np.linalg.norm(x, axis=1)
-    ok = r > 0
-    u = x / np.where(ok, r, 1.0)[:, None]
-    u[~ok] = (0.0, 0.0, 1.0)  # arbitrary ray at the exact centre; gradients zeroed below
-    sign_u = np.where(u >= 0, 1.0, -1.0)
-    au = np.maximum(np.abs(u), _U_FLOOR)
-    lg = np.log(au / a)  # (N, 3)
-    p2, p1 = 2.0 / e2, 2.0 / e1
-    big_a, big_b, big_c = p2 * lg[:, 0], p2 * lg[:, 1], p1 * lg[:, 2]
-    s_xy = np.logaddexp(big_a, big_b)
-    w_a, w_b = np.exp(big_a - s_xy), np.exp(big_b - s_xy)
-    h = (e2 / e1) * s_xy
-    g = np.logaddexp(h, big_c)  # log F(u)
-    w_h, w_c = np.exp(h - g), np.exp(big_c - g)
-    rs = np.exp(-0.5 * e1 * g)  # surface radius along the ray
-    diff = r - rs
-    sgn = np.where(diff >= 0, 1.0, -1.0)
-    d = np.abs(diff)
-
-    g_l = p1 * np.stack([w_h * w_a, w_h * w_b, w_c], axis=1)  # d log F / d log|x_i / a_i|
-    dg_de1 = -(w_h * h + w_c * big_c) / e1
-    dg_de2 = w_h * (s_xy / e1 - (2.0 / (e1 * e2)) * (w_a * lg[:, 0] + w_b * lg[:, 1]))
-    drs_de = np.stack([rs * (-0.5 * g - 0.5 * e1 * dg_de1), rs * (-0.5 * e1 * dg_de2)], axis=1)
-    drs_da = (rs * 0.5 * e1)[:, None] * g_l / a
-    # rs = |x| F(x)^(-eps1/2) and d log F / dx_i = g_l_i / x_i.
-    with np.errstate(divide="ignore", invalid="ignore"):
-        drs_dx = (rs / r)[:, None] * (u - 0.5 * e1 * g_l / (sign_u * au))
-    dd_dx = sgn[:, None] * (u - drs_dx)
-    dd_de = -sgn[:, None] * drs_de
-    dd_da = -sgn[:, None] * drs_da
-    if not ok.all():
-        d[~ok] = a.min()
-        dd_dx[~ok] = 0.0
-        dd_de[~ok] = 0.0
-        dd_da[~ok] = 0.0
-    return d, dd_de, dd_da, dd_dx
-
-
-def _project_to_surface(q: np.ndarray, e1: float, e2: float, a: np.ndarray) -> np.ndarray:
-    """Radially project canonical points (N, 3) (none at the centre) onto the surface."""
-    return q * np.exp(-0.5 * e1 * _log_f(q, e1, e2, a))[:, None]
-
-
-def _surface_canonical(dirs: np.ndarray, e: np.ndarray, a: np.ndarray) -> np.ndarray:
-    """Canonical surface points (K, 3): fixed box directions ``dirs`` (K, 3) scaled by the
-    semi-axes and projected radially; smooth in (e, a), unlike a fresh random sample."""
-    return _project_to_surface(dirs * a, e[0], e[1], a)
-
-
-def _surface_canonical_with_grad(
-    dirs: np.ndarray, e: np.ndarray, a: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_surface_canonical` (K, 3) and its derivative (K, 3, 5) w.r.t. (e1, e2, a1..a3).
-
-    Central differences: the projection is closed-form and costs microseconds for K = 200,
-    while the distance queries (the expensive part) are done once per Jacobian regardless.
-    """
-    sc = _surface_canonical(dirs, e, a)
-    theta = np.r_[e, a]
-    steps = np.r_[1e-6, 1e-6, 1e-6 * a]
-    grad = np.empty((len(dirs), 3, 5))
-    for i, h in enumerate(steps):
-        up, dn = theta.copy(), theta.copy()
-        up[i] += h
-        dn[i] -= h
-        diff = _surface_canonical(dirs, up[:2], up[2:]) - _surface_canonical(dirs, dn[:2], dn[2:])
-        grad[:, :, i] = diff / (2.0 * h)
-    return sc, grad
 
 
 class _SurfaceOracle:
@@ -271,80 +88,6 @@ class _SurfaceOracle:
         """Distances (K,) m and their gradients (K, 3) w.r.t. the points p (K, 3) m."""
         d, offset = self.distance_and_offset(p)
         return d, self.gradient(p, d, offset)
-
-
-# --------------------------------------------------------------------------------------------
-# Public geometry
-# --------------------------------------------------------------------------------------------
-
-
-def implicit(params: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Inside-outside function F (N,) of object-frame points (N, 3) in metres.
-
-    F < 1 inside, F = 1 on the surface, F > 1 outside; 0 at the centre. Finite everywhere
-    (values beyond e^700 are clipped) for any exponent in [0.1, 2].
-    """
-    p = _check_params(params)
-    x = to_canonical(p, _check_points(points))
-    return np.exp(np.minimum(_log_f(x, p[0], p[1], p[2:5]), _LOG_MAX))
-
-
-def radial_distance(params: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Radial Euclidean distance (N,) m of points (N, 3) m to the superquadric surface.
-
-    Equals |x| * |1 - F(x)^(-eps1/2)| (x in the canonical frame): the distance from x to the
-    surface point on the ray from the centre through x. At the exact centre: the smallest
-    semi-axis. Finite everywhere.
-    """
-    p = _check_params(params)
-    x = to_canonical(p, _check_points(points))
-    return _radial_canonical(x, p[0], p[1], p[2:5])
-
-
-def _box_surface_points(a: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
-    """n points (n, 3) uniform by area on the surface of the box [-a, a]."""
-    face_area = np.array([a[1] * a[2], a[0] * a[2], a[0] * a[1]])
-    face_axis = rng.choice(3, size=n, p=face_area / face_area.sum())
-    q = rng.uniform(-1.0, 1.0, size=(n, 3))
-    q[np.arange(n), face_axis] = rng.choice([-1.0, 1.0], size=n)
-    return q * a
-
-
-def _farthest_point_subset(pts: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
-    """Indices (n,) of a farthest-point subset: spreads points evenly over the candidates."""
-    idx = np.empty(n, dtype=np.int64)
-    idx[0] = rng.integers(len(pts))
-    d2 = np.sum((pts - pts[idx[0]]) ** 2, axis=1)
-    for i in range(1, n):
-        idx[i] = int(np.argmax(d2))
-        d2 = np.minimum(d2, np.sum((pts - pts[idx[i]]) ** 2, axis=1))
-    return idx
-
-
-def sample_surface(params: np.ndarray, n: int, seed: int = 0, oversample: int = 8) -> np.ndarray:
-    """n points (n, 3) m on the superquadric surface, spread roughly uniformly, object frame.
-
-    The (eta, omega) parameterisation concentrates almost all samples at edges and corners for
-    small exponents (cos^0.1 is ~1 almost everywhere), so instead candidates are drawn
-    uniformly by area on the canonical box [-a, a] and projected radially onto the surface (a
-    bounded distortion for every exponent in [0.1, 2]); ``oversample * n`` candidates are then
-    thinned by farthest-point sampling, which evens out the remaining density variation.
-    Deterministic for a given ``seed``.
-    """
-    p = _check_params(params)
-    if n <= 0:
-        return np.zeros((0, 3))
-    rng = np.random.default_rng(seed)
-    a = p[2:5]
-    q = _box_surface_points(a, max(oversample * n, 2000), rng)
-    cand = _project_to_surface(q, p[0], p[1], a)
-    idx = _farthest_point_subset(cand, min(n, len(cand)), rng)
-    return cand[idx] @ rotation_matrix(p).T + p[8:11]
-
-
-# --------------------------------------------------------------------------------------------
-# EMS fitting
-# --------------------------------------------------------------------------------------------
 
 
 def _single_threaded_blas(fit: Callable[..., T]) -> Callable[..., T]:
@@ -694,7 +437,7 @@ def fit_superquadric(
         switch_every: also try switching every this many iterations (0: only on convergence).
         surface_closest_fn: maps (K, 3) object-frame points (m) to the (K, 3) closest points on
             the object's surface (preferred: gives the surface term's exact gradient; see
-            :class:`MeshOracle`).
+            :class:`.quality.MeshOracle`).
         surface_distance_fn: maps (K, 3) points to (K,) unsigned distances (m) to the object's
             surface; used when no ``surface_closest_fn`` is given (gradient by forward
             differences, one extra batched call of 3K points per Jacobian).
@@ -702,7 +445,7 @@ def fit_superquadric(
         surface_samples: K, points on the superquadric for the surface term.
 
     Returns:
-        params: (11,) float64, see the module docstring.
+        params: (11,) float64, see :mod:`.geometry`.
         diagnostics: floats ``mean_radial_m`` (mean radial distance of all used points),
         ``inlier_mean_radial_m`` (posterior-weighted mean), ``sigma_m``, ``inlier_fraction``,
         ``nll``, ``iters``, ``switches``, ``converged`` (1.0 if the tolerance was reached,
@@ -876,194 +619,3 @@ def _prefer_square_section(problem: _Problem, state: _State, sigma2: float, nfev
     if score(dual) <= score(state) + 3e-3 * problem.size:
         return dual
     return state
-
-
-# --------------------------------------------------------------------------------------------
-# Mesh queries and fit quality
-# --------------------------------------------------------------------------------------------
-
-
-class MeshOracle:
-    """Closest points, distances and inside tests for a triangle mesh (open3d / embree).
-
-    Args:
-        vertices: (V, 3) metres. faces: (F, 3) int.
-        threads: open3d query threads; 1 by default because the fit's queries are small
-            (~200 points) and the pipeline already runs objects in parallel.
-    """
-
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, threads: int = 1) -> None:
-        import open3d as o3d  # heavy import, only where a mesh is queried
-
-        self._o3d = o3d
-        self.threads = threads
-        self.scene = o3d.t.geometry.RaycastingScene()
-        self.scene.add_triangles(
-            o3d.core.Tensor(np.asarray(vertices, dtype=np.float32)),
-            o3d.core.Tensor(np.asarray(faces, dtype=np.uint32)),
-        )
-        v = np.asarray(vertices, dtype=np.float64)
-        self.bounds = (v.min(axis=0), v.max(axis=0))
-
-    def _query(self, points: np.ndarray) -> object:
-        return self._o3d.core.Tensor(np.asarray(points, dtype=np.float32).reshape(-1, 3))
-
-    def closest(self, points: np.ndarray) -> np.ndarray:
-        """Closest surface points (N, 3) float64 m of query points (N, 3) m."""
-        out = self.scene.compute_closest_points(self._query(points), nthreads=self.threads)
-        return out["points"].numpy().astype(np.float64)
-
-    def distance(self, points: np.ndarray) -> np.ndarray:
-        """Unsigned distance (N,) float64 m to the surface."""
-        return self.scene.compute_distance(self._query(points), nthreads=self.threads).numpy()
-
-    def inside(self, points: np.ndarray, nsamples: int = 7) -> np.ndarray:
-        """Inside mask (N,) bool: majority vote of ``nsamples`` ray parity tests (odd).
-
-        A single ray misclassifies points whose ray leaves through a hole of an open scan;
-        the vote over random directions is robust to small holes.
-        """
-        occ = self.scene.compute_occupancy(
-            self._query(points), nthreads=self.threads, nsamples=nsamples
-        )
-        return occ.numpy() > 0.5
-
-
-def sample_surface_dense(params: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
-    """n points (n, 3) m on the surface, object frame, without thinning (fast for large n).
-
-    Uniform on the canonical box, projected radially: density varies by a bounded factor, so
-    use it where only coverage matters (nearest-neighbour queries), not for statistics.
-    """
-    p = _check_params(params)
-    rng = np.random.default_rng(seed)
-    q = _box_surface_points(p[2:5], n, rng)
-    return _project_to_surface(q, p[0], p[1], p[2:5]) @ rotation_matrix(p).T + p[8:11]
-
-
-def _bounds_of(params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Axis-aligned bounds (3,), (3,) m of the superquadric (of its canonical box, rotated)."""
-    p = _check_params(params)
-    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * p[2:5]
-    world = corners @ rotation_matrix(p).T + p[8:11]
-    return world.min(axis=0), world.max(axis=0)
-
-
-def volume_iou(
-    params: np.ndarray,
-    inside_mesh: Callable[[np.ndarray], np.ndarray],
-    mesh_bounds: tuple[np.ndarray, np.ndarray],
-    voxel: float = 0.0025,
-    max_cells: int = 1_000_000,
-) -> float:
-    """Volume intersection-over-union of the superquadric and a solid, on a voxel grid.
-
-    Cell centres fill the union of the superquadric's and the solid's bounding boxes; a cell is
-    inside the superquadric when ``implicit <= 1`` and inside the solid when ``inside_mesh``
-    says so (e.g. :meth:`MeshOracle.inside`).
-
-    Args:
-        params: (11,) superquadric.
-        inside_mesh: maps (N, 3) points m to an (N,) bool mask.
-        mesh_bounds: the solid's axis-aligned bounds, two (3,) arrays, m.
-        voxel: cell edge, m; grown so that the grid has at most ``max_cells`` cells (the IoU
-            of objects larger than ~25 cm is then measured at a coarser step).
-
-    Returns:
-        IoU in [0, 1]; 0 if both are empty on the grid.
-    """
-    lo_s, hi_s = _bounds_of(params)
-    lo = np.minimum(lo_s, np.asarray(mesh_bounds[0], dtype=np.float64))
-    hi = np.maximum(hi_s, np.asarray(mesh_bounds[1], dtype=np.float64))
-    span = hi - lo
-    voxel = max(voxel, float(np.prod(span) / max_cells) ** (1.0 / 3.0))
-    counts = np.maximum(np.ceil(span / voxel).astype(int), 1)
-    axes = [lo[i] + (np.arange(counts[i]) + 0.5) * span[i] / counts[i] for i in range(3)]
-    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    in_sq = implicit(params, grid) <= 1.0
-    in_mesh = np.asarray(inside_mesh(grid), dtype=bool)
-    union = int(np.count_nonzero(in_sq | in_mesh))
-    return float(np.count_nonzero(in_sq & in_mesh) / union) if union else 0.0
-
-
-def fit_quality(
-    params: np.ndarray,
-    mesh_points: np.ndarray,
-    oracle: MeshOracle,
-    seed: int = 0,
-    n_sq_samples: int = 2000,
-    voxel: float = 0.0025,
-) -> dict[str, float]:
-    """Two-sided distances (m) and volume IoU of a fitted superquadric against a mesh.
-
-    - ``mesh_to_sq_{mean,p95}_m``: over ``mesh_points`` (N, 3) m (area-uniform samples of the
-      mesh), the distance to the superquadric: the smaller of the radial distance and the
-      distance to the nearest of 50k dense surface samples (both are upper bounds of the
-      Euclidean distance; the radial one is exact on the surface, the sampled one far from
-      the centre).
-    - ``sq_to_mesh_{mean,p95}_m``: over ``n_sq_samples`` area-uniform superquadric samples, the
-      exact distance to the mesh.
-    - ``volume_iou``: :func:`volume_iou` with the oracle's majority-vote inside test.
-    """
-    pts = _check_points(mesh_points, "mesh_points")
-    dense = sample_surface_dense(params, 50_000, seed=seed)
-    nearest = cKDTree(dense).query(pts)[0]
-    mesh_to_sq = np.minimum(radial_distance(params, pts), nearest)
-    sq_to_mesh = oracle.distance(sample_surface(params, n_sq_samples, seed=seed))
-    return {
-        "mesh_to_sq_mean_m": float(mesh_to_sq.mean()),
-        "mesh_to_sq_p95_m": float(np.percentile(mesh_to_sq, 95)),
-        "sq_to_mesh_mean_m": float(sq_to_mesh.mean()),
-        "sq_to_mesh_p95_m": float(np.percentile(sq_to_mesh, 95)),
-        "volume_iou": volume_iou(params, oracle.inside, oracle.bounds, voxel=voxel),
-    }
-
-
-def fit_mesh(
-    vertices: np.ndarray, faces: np.ndarray, params: SQParams
-) -> tuple[np.ndarray, dict[str, float]]:
-    """The ``sq`` stage's fit of a mesh: EMS + surface term, with its quality report.
-
-    Samples ``params.n_points`` points uniformly on the mesh, fits with the surface term's
-    analytic gradient (exact closest points on the mesh), and refits with a smaller surface
-    weight if the term left fewer than ``params.min_inlier_fraction`` inliers (the fit gave up
-    on most of the object, as on 028_skillet_lid at weight 1).
-
-    Args:
-        vertices: (V, 3) metres, object frame. faces: (F, 3) int.
-    Returns:
-        params (11,) float64 and diagnostics: the fit's, ``surface_weight_used``,
-        ``fit_seconds`` (all fitting, without the report), and
-        :func:`fit_quality`'s two-sided distances (metres) and ``volume_iou``.
-    """
-    from geomprep.pointcloud import sample_uniform  # a sibling stage module; avoid a cycle
-
-    rng = np.random.default_rng(params.seed)
-    points, normals = sample_uniform(vertices, faces, params.n_points, rng)
-    oracle = MeshOracle(vertices, faces)
-    fit_kwargs = {
-        f.name: getattr(params, f.name)
-        for f in dataclasses.fields(params)
-        if f.name not in ("min_inlier_fraction", "fallback_weight_factor")
-    }
-
-    def fit(weight: float) -> tuple[np.ndarray, dict[str, float]]:
-        closest = oracle.closest if weight > 0 else None
-        return fit_superquadric(
-            points, normals, surface_closest_fn=closest, **{**fit_kwargs, "surface_weight": weight}
-        )
-
-    weight = params.surface_weight
-    sq_params, info = fit(weight)
-    fit_seconds = info["seconds"]
-    if weight > 0 and info["inlier_fraction"] < params.min_inlier_fraction:
-        weight *= params.fallback_weight_factor
-        sq_params, info = fit(weight)
-        fit_seconds += info["seconds"]
-    quality = fit_quality(sq_params, points, oracle, seed=params.seed)
-    return sq_params, {
-        **info,
-        "surface_weight_used": weight,
-        "fit_seconds": fit_seconds,
-        **quality,
-    }
