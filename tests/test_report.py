@@ -224,6 +224,29 @@ def test_write_report(run_dirs: list[Path], tmp_path: Path) -> None:
     assert not list(out.glob(".*tmp*"))
 
 
+@pytest.mark.parametrize("relative_args", [False, True])
+def test_report_names_runs_relative_to_its_directory(
+    run_dirs: list[Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, relative_args: bool
+) -> None:
+    """No absolute machine path in report.md; each run's link resolves from the report's
+    directory to that run, whether the command got absolute or relative paths."""
+    out = tmp_path / "reports" / "latest"
+    args, out_arg = run_dirs, out
+    if relative_args:
+        monkeypatch.chdir(tmp_path)
+        args = [d.relative_to(tmp_path) for d in run_dirs]
+        out_arg = out.relative_to(tmp_path)
+    report.write_report(args, out_arg)
+    text = (out / "report.md").read_text()
+    assert str(tmp_path) not in text and str(tmp_path.resolve()) not in text
+    listed = [line for line in text.splitlines() if line.startswith("- [`")]
+    assert len(listed) == len(run_dirs)
+    for line, run_dir in zip(listed, run_dirs, strict=True):
+        link = line.split("](", 1)[1].split(")", 1)[0]
+        assert not Path(link).is_absolute() and link == f"../../runs/{run_dir.name}"
+        assert (out / link).resolve() == run_dir.resolve()
+
+
 def test_write_report_rejects_unknown_group_before_writing(
     run_dirs: list[Path], tmp_path: Path
 ) -> None:

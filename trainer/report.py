@@ -17,6 +17,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -531,6 +532,15 @@ def plot_gain(runs: Sequence[Run], base: str, other: str, out_png: str | Path) -
 # --------------------------------------------------------------------------------------- report
 
 
+def _relative_to(path: Path, base: Path) -> str:
+    """``path`` relative to the directory ``base`` (with ``..`` as needed), '/'-separated.
+
+    The report names runs this way so that it holds no machine-specific absolute path and its
+    links still work when the report and the runs are moved or shared together.
+    """
+    return Path(os.path.relpath(Path(path).resolve(), Path(base).resolve())).as_posix()
+
+
 def _file_label(name: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "-" for c in name)
 
@@ -541,8 +551,9 @@ def write_report(
     """Load the runs and write into ``out_dir``: ``success_vs_steps.png``,
     ``success_vs_time.png``, ``gain_<other>_over_<base>.png`` when ``compare = (base, other)``
     is given (group labels or representation names), and ``report.md`` with the summary table,
-    the per-object table when any run has eval data, and links to the images. Every file is
-    written atomically; returns the written paths, report.md last."""
+    the per-object table when any run has eval data, links to the images and the list of runs
+    (each a link relative to ``out_dir``: no absolute path is written). Every file is written
+    atomically; returns the written paths, report.md last."""
     if not run_dirs:
         raise TrainerError("no run directories given; pass at least one run directory")
     # The same directory given twice (e.g. overlapping globs) would count as an extra seed.
@@ -603,8 +614,10 @@ def write_report(
             f"![gain]({written[-1].name})",
             "",
         ]
-    parts += ["## Runs", ""]
-    parts += [f"- `{r.path}`: {'/'.join(r.group)}, seed {r.seed}" for r in runs]
+    parts += ["## Runs", "", "Paths relative to this report's directory.", ""]
+    for r in runs:
+        rel = _relative_to(r.path, out_dir)
+        parts.append(f"- [`{rel}`]({rel}): {'/'.join(r.group)}, seed {r.seed}")
 
     report = out_dir / "report.md"
     with atomic_path(report) as tmp:
