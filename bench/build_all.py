@@ -16,7 +16,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from geomprep import fetch, pipeline
+from geomprep import importer, pipeline, ycb
 from geomprep.config import Config
 
 
@@ -37,12 +37,12 @@ def main() -> None:
     args = parser.parse_args()
 
     if args.objects.isdigit():
-        names = list(fetch.YCB_OBJECTS[: int(args.objects)])
+        names = list(ycb.OBJECTS[: int(args.objects)])
     else:
         names = [n.strip() for n in args.objects.split(",")]
     data_dir = args.data_dir or Path(tempfile.mkdtemp(prefix="geomprep-bench-")) / "data"
     cfg = Config(data_dir=data_dir)
-    fetch.import_directory(args.ycb_dir, cfg.raw_dir, names)
+    importer.import_directory(args.ycb_dir, cfg.raw_dir, names)
 
     start = time.perf_counter()
     report = pipeline.build(cfg, names, jobs=args.jobs, progress=True)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from geomprep import builtin, fetch, pipeline
+from geomprep import builtin, importer, pipeline, ycb, ycb_download
 from geomprep.config import Config, load_config
 from geomprep.errors import GeomprepError, run_cli
 
@@ -85,7 +85,7 @@ def cli(ctx: click.Context, data_dir: Path | None, config_path: Path | None, ver
 )
 @click.option("--density", type=float, default=None, help="kg/m^3 for objects with no mass listed.")
 @click.option("--force", is_flag=True, help="Re-import objects that are already complete.")
-@click.option("--url", default=fetch.YCB_BASE_URL, show_default=True, help="YCB archive server.")
+@click.option("--url", default=ycb.BASE_URL, show_default=True, help="YCB archive server.")
 @click.pass_obj
 def fetch_cmd(
     obj: Context,
@@ -114,11 +114,11 @@ def fetch_cmd(
             click.echo(f"{len(done)} objects ready in {cfg.raw_dir}")
             return
     if source_dir is not None:
-        done += fetch.import_directory(
+        done += importer.import_directory(
             source_dir, cfg.raw_dir, names, density_kg_m3=density, masses_csv=masses, force=force
         )
     else:
-        done += fetch.fetch_ycb(
+        done += ycb_download.fetch_ycb(
             cfg.raw_dir, names, base_url=url, masses_csv=masses, density_kg_m3=density, force=force
         )
     click.echo(f"{len(done)} objects ready in {cfg.raw_dir}")
@@ -130,7 +130,7 @@ def fetch_cmd(
 def list_cmd(obj: Context, available: bool) -> None:
     """Show the objects and the status of each stage (done / stale / missing)."""
     if available:
-        for name in fetch.YCB_OBJECTS:
+        for name in ycb.OBJECTS:
             click.echo(name)
         return
     cfg = obj.cfg

@@ -10,7 +10,6 @@ Both are in the object frame: metres, origin at the centre of mass, axes of the 
 
 from __future__ import annotations
 
-import hashlib
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -53,15 +52,6 @@ class NormalizedMesh:
     """(Vv, 2) float32 texture coordinates, or None for an untextured source."""
     texture: Image.Image | None
     """The texture image, or None."""
-
-
-def file_sha256(path: Path) -> str:
-    """Hex SHA-256 of a file's bytes."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def load_source(path: Path) -> trimesh.Trimesh:

@@ -39,13 +39,16 @@ from geomprep import (
     bbox,
     builtin,
     decompose,
-    fetch,
+    hashing,
+    importer,
     mesh,
     mjcf,
     pointcloud,
+    rawstore,
     sdf,
     store,
     superquadric,
+    ycb,
 )
 from geomprep.config import Config, params_dict
 from geomprep.errors import GeomprepError
@@ -98,10 +101,10 @@ def _hash(payload: Any) -> str:
 
 def source_identity(cfg: Config, name: str) -> dict[str, Any]:
     """What the mesh stage's output depends on: the source file's bytes and the mass rule."""
-    source = fetch.read_source(cfg.raw_dir, name)
+    source = rawstore.read_source(cfg.raw_dir, name)
     mesh_path = cfg.raw_dir / name / source["mesh"]
     return {
-        "mesh_sha256": mesh.file_sha256(mesh_path) if mesh_path.is_file() else "missing",
+        "mesh_sha256": hashing.file_sha256(mesh_path) if mesh_path.is_file() else "missing",
         "mass_kg": source.get("mass_kg"),
         "density_kg_m3": source.get("density_kg_m3"),
     }
@@ -149,7 +152,7 @@ def _load_mesh(cfg: Config, name: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def run_mesh(cfg: Config, name: str) -> Groups:
-    source = fetch.read_source(cfg.raw_dir, name)
+    source = rawstore.read_source(cfg.raw_dir, name)
     path = cfg.raw_dir / name / source["mesh"]
     loaded = mesh.load_source(path)
     norm = mesh.normalize_mesh(
@@ -169,7 +172,7 @@ def run_mesh(cfg: Config, name: str) -> Groups:
         "mass_kg": norm.mass_kg,
         "volume_m3": norm.volume_m3,
         "watertight": norm.watertight,
-        "source_sha256": mesh.file_sha256(path),
+        "source_sha256": hashing.file_sha256(path),
         "com_offset": norm.com_offset.astype(np.float64),
         "com_method": norm.com_method,
         "mass_source": "masses.csv" if source.get("mass_kg") is not None else "density",
@@ -314,7 +317,7 @@ def resolve_objects(cfg: Config, spec: str | Sequence[str] | None) -> list[str]:
     if spec is None:
         spec = "all"
     items = [s.strip() for s in (spec.split(",") if isinstance(spec, str) else spec) if s.strip()]
-    imported = fetch.complete_objects(cfg.raw_dir)
+    imported = rawstore.complete_objects(cfg.raw_dir)
     names: list[str] = []
     for item in items:
         if item == "all":
@@ -322,13 +325,13 @@ def resolve_objects(cfg: Config, spec: str | Sequence[str] | None) -> list[str]:
         elif item == "builtin":
             names += list(builtin.NAMES)
         elif item == "ycb":
-            names += [n for n in imported if n in fetch.YCB_OBJECTS]
+            names += [n for n in imported if n in ycb.OBJECTS]
         elif item in builtin.NAMES or item in imported:
             names.append(item)
         else:
             hint = (
                 " (a YCB object: import it first with 'geomprep fetch')"
-                if item in fetch.YCB_OBJECTS
+                if item in ycb.OBJECTS
                 else ""
             )
             raise GeomprepError(
@@ -352,7 +355,7 @@ def ensure_builtin(cfg: Config, names: Sequence[str]) -> None:
             _, mass = builtin.write_source(name, staging)
             rows.append(f"{name},{mass}")
         (staging / "masses.csv").write_text("\n".join(rows) + "\n")
-        fetch.import_directory(staging, cfg.raw_dir, missing)
+        importer.import_directory(staging, cfg.raw_dir, missing)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
 

@@ -12,7 +12,7 @@ from pathlib import Path  # noqa: E402
 import pytest  # noqa: E402
 import trimesh  # noqa: E402
 
-from geomprep import fetch, mesh, pipeline  # noqa: E402
+from geomprep import importer, mesh, pipeline  # noqa: E402
 from geomprep.config import Config  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -59,7 +59,7 @@ def build_ycb(tmp_path_factory: pytest.TempPathFactory, label: str, names: tuple
     if the YCB models are absent)."""
     ycb = require_ycb()
     cfg = Config(data_dir=tmp_path_factory.mktemp(label) / "data")
-    fetch.import_directory(ycb, cfg.raw_dir, names)
+    importer.import_directory(ycb, cfg.raw_dir, names)
     report = pipeline.build(cfg, list(names), jobs=2, progress=False)
     assert not report.failed, report.failed
     return cfg

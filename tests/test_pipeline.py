@@ -16,7 +16,7 @@ import pytest
 import trimesh
 from click.testing import CliRunner
 
-from geomprep import cli, fetch, mesh, pipeline, store
+from geomprep import cli, importer, mesh, pipeline, rawstore, store
 from geomprep.config import Config, load_config
 from geomprep.errors import GeomprepError
 from tests.conftest import require_ycb
@@ -62,7 +62,7 @@ def test_changed_parameter_reruns_only_that_stage_and_pack(box_data):
 
 def test_changed_source_reruns_everything(box_data):
     raw = box_data.raw_dir / "builtin_dice"
-    source = fetch.read_source(box_data.raw_dir, "builtin_dice")
+    source = rawstore.read_source(box_data.raw_dir, "builtin_dice")
     bigger = trimesh.creation.box(extents=(0.02, 0.02, 0.02))
     bigger.export(raw / source["mesh"])
     assert set(pipeline.stage_status(box_data, "builtin_dice").values()) == {"stale"}
@@ -181,7 +181,7 @@ def test_broken_object_fails_alone(tmp_path):
     trimesh.creation.box(extents=(0.05, 0.05, 0.05)).export(src / "good_box.stl")
     (src / "bad.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")  # 1 m triangle, flat
     cfg = Config(data_dir=tmp_path / "data")
-    fetch.import_directory(src, cfg.raw_dir)
+    importer.import_directory(src, cfg.raw_dir)
     report = pipeline.build(cfg, ["good_box", "bad"], stages=["decompose"], jobs=1, progress=False)
     assert set(report.failed) == {"bad"} and "\n" not in report.failed["bad"]
     assert pipeline.stage_path(cfg, "good_box", "decompose").is_file()

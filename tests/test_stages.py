@@ -9,7 +9,8 @@ import open3d as o3d
 import pytest
 import trimesh
 
-from geomprep import decompose, fetch, mesh, mjcf, pipeline, store
+from geomprep import decompose, mesh, mjcf, pipeline, store
+from geomprep.masses import read_masses
 from tests.conftest import YCB_DIR
 
 
@@ -67,7 +68,7 @@ def test_mesh_centred_at_centre_of_mass(built):
 
 
 def test_mass_comes_from_masses_csv(ycb_data):
-    masses = fetch.read_masses(YCB_DIR / "masses.csv")
+    masses = read_masses(YCB_DIR / "masses.csv")
     for name in ("032_knife", "025_mug"):
         _, attrs = store.read_group(ycb_data.processed_dir / f"{name}.h5", "mesh")
         assert attrs["mass_kg"] == pytest.approx(masses[name], rel=1e-6)

@@ -1,10 +1,10 @@
-"""Tests for geomprep.fetch: YCB download against a real local HTTP server, and local import."""
+"""Tests for geomprep.ycb_download (and geomprep.download under it): YCB archives fetched from a
+real local HTTP server that can truncate, stall, fail and corrupt on demand."""
 
 from __future__ import annotations
 
 import hashlib
 import io
-import json
 import tarfile
 import threading
 import time
@@ -14,42 +14,21 @@ from pathlib import Path
 
 import pytest
 import trimesh
-from PIL import Image
 
-from geomprep import fetch
+from geomprep import cli, download, ycb
 from geomprep.errors import GeomprepError
-from geomprep.fetch import (
-    complete_objects,
-    fetch_ycb,
-    import_directory,
-    read_masses,
-    read_source,
-)
+from geomprep.rawstore import complete_objects, read_source
+from geomprep.ycb_download import fetch_ycb
 from tests.conftest import YCB_DIR
+from tests.raw_samples import MTL_TEXT, assert_absent, box_obj, png_bytes
 
 KNIFE = "032_knife"
 DICE = "062_dice"
 
 
 # --------------------------------------------------------------------------------------------
-# Test data: meshes and archives in the official YCB format
+# Test data: archives in the official YCB format
 # --------------------------------------------------------------------------------------------
-
-
-def _png_bytes() -> bytes:
-    """A tiny real PNG texture."""
-    buf = io.BytesIO()
-    Image.new("RGB", (2, 2), (200, 30, 30)).save(buf, format="PNG")
-    return buf.getvalue()
-
-
-def _box_obj() -> str:
-    """A unit box as OBJ text that names the YCB-style material file."""
-    body = trimesh.creation.box(extents=(1.0, 1.0, 1.0)).export(file_type="obj")
-    return "mtllib textured.mtl\nusemtl material_0\n" + body
-
-
-MTL_TEXT = "newmtl material_0\nmap_Kd texture_map.png\n"
 
 
 def _tgz(entries: list[tuple[tarfile.TarInfo, bytes | None]]) -> bytes:
@@ -73,9 +52,9 @@ def ycb_archive(name: str) -> bytes:
     prefix = f"{name}/google_16k/"
     return _tgz(
         [
-            _file(prefix + "textured.obj", _box_obj().encode()),
+            _file(prefix + "textured.obj", box_obj().encode()),
             _file(prefix + "textured.mtl", MTL_TEXT.encode()),
-            _file(prefix + "texture_map.png", _png_bytes()),
+            _file(prefix + "texture_map.png", png_bytes()),
         ]
     )
 
@@ -174,7 +153,7 @@ def server() -> Iterator[_Server]:
 @pytest.fixture(autouse=True)
 def no_backoff(monkeypatch: pytest.MonkeyPatch) -> None:
     """Retries without sleeping, so failure cases stay fast."""
-    monkeypatch.setattr(fetch, "RETRY_BACKOFF_S", 0.0)
+    monkeypatch.setattr(download, "RETRY_BACKOFF_S", 0.0)
 
 
 def _serve(srv: _Server, name: str, data: bytes | None = None) -> bytes:
@@ -189,23 +168,16 @@ def _fetch(srv: _Server, raw: Path, names: list[str], **kwargs: object) -> list[
     return fetch_ycb(raw, names, base_url=srv.base_url, progress=False, **kwargs)
 
 
-def _assert_absent(raw: Path, name: str) -> None:
-    """No complete object, no object dir, no staging leftovers for ``name``."""
-    assert name not in complete_objects(raw)
-    assert not (raw / name).exists()
-    assert not list(raw.glob(f".{name}.*"))
-
-
 # --------------------------------------------------------------------------------------------
 # fetch_ycb
 # --------------------------------------------------------------------------------------------
 
 
 def test_ycb_objects_match_shared_list() -> None:
-    assert len(fetch.YCB_OBJECTS) == 78
-    assert len(set(fetch.YCB_OBJECTS)) == 78
+    assert len(ycb.OBJECTS) == 78
+    assert len(set(ycb.OBJECTS)) == 78
     if YCB_DIR.is_dir():
-        assert sorted(fetch.YCB_OBJECTS) == sorted(p.name for p in YCB_DIR.iterdir() if p.is_dir())
+        assert sorted(ycb.OBJECTS) == sorted(p.name for p in YCB_DIR.iterdir() if p.is_dir())
 
 
 def test_fetch_normal_download(server: _Server, tmp_path: Path) -> None:
@@ -269,7 +241,7 @@ def test_fetch_always_truncated_fails_cleanly(server: _Server, tmp_path: Path) -
     assert f"{server.base_url}{KNIFE}_google_16k.tgz" in msg
     assert "HTTP 20" in msg and "\n" not in msg
     assert len(server.requests) == 3
-    _assert_absent(raw, KNIFE)
+    assert_absent(raw, KNIFE)
     assert not (raw / ".downloads" / f"{KNIFE}_google_16k.tgz").exists()
 
 
@@ -301,7 +273,7 @@ def test_fetch_server_error_always(server: _Server, tmp_path: Path) -> None:
         _fetch(server, raw, [DICE], retries=1)
     assert f"{DICE}_google_16k.tgz" in str(err.value)
     assert len(server.requests) == 2
-    _assert_absent(raw, DICE)
+    assert_absent(raw, DICE)
 
 
 def test_fetch_404_is_not_retried(server: _Server, tmp_path: Path) -> None:
@@ -312,8 +284,9 @@ def test_fetch_404_is_not_retried(server: _Server, tmp_path: Path) -> None:
 
     msg = str(err.value)
     assert f"{server.base_url}{DICE}_google_16k.tgz" in msg and "HTTP 404" in msg
+    assert msg.endswith("check the object name and the server address (--url)")
     assert len(server.requests) == 1
-    _assert_absent(raw, DICE)
+    assert_absent(raw, DICE)
 
 
 def test_fetch_connection_refused(tmp_path: Path, server: _Server) -> None:
@@ -333,7 +306,7 @@ def test_fetch_corrupted_body_rejected(server: _Server, tmp_path: Path) -> None:
     with pytest.raises(GeomprepError, match="MD5"):
         _fetch(server, raw, [KNIFE], retries=1)
 
-    _assert_absent(raw, KNIFE)
+    assert_absent(raw, KNIFE)
     # A corrupt .part must not be kept for resuming.
     assert list((raw / ".downloads").iterdir()) == []
 
@@ -393,7 +366,7 @@ def test_fetch_restarts_when_part_too_long(server: _Server, tmp_path: Path) -> N
 )
 def test_fetch_rejects_malicious_archive(server: _Server, tmp_path: Path, member: str) -> None:
     raw = tmp_path / "raw"
-    entries = [_file(f"{KNIFE}/google_16k/textured.obj", _box_obj().encode())]
+    entries = [_file(f"{KNIFE}/google_16k/textured.obj", box_obj().encode())]
     if member == "link":
         info = tarfile.TarInfo(f"{KNIFE}/google_16k/texture_map.png")
         info.type = tarfile.SYMTYPE
@@ -406,7 +379,7 @@ def test_fetch_rejects_malicious_archive(server: _Server, tmp_path: Path, member
     with pytest.raises(GeomprepError, match="refusing to extract"):
         _fetch(server, raw, [KNIFE])
 
-    _assert_absent(raw, KNIFE)
+    assert_absent(raw, KNIFE)
     assert not (raw / "evil").exists() and not (tmp_path / "evil").exists()
     assert not Path("/tmp/geomprep-evil-abs").exists()
     assert list((raw / ".downloads").iterdir()) == []
@@ -416,9 +389,16 @@ def test_fetch_archive_without_mesh(server: _Server, tmp_path: Path) -> None:
     raw = tmp_path / "raw"
     _serve(server, KNIFE, _tgz([_file(f"{KNIFE}/google_16k/readme.txt", b"hi")]))
 
-    with pytest.raises(GeomprepError, match=r"textured.obj"):
+    with pytest.raises(GeomprepError, match=r"textured.obj") as err:
         _fetch(server, raw, [KNIFE])
-    _assert_absent(raw, KNIFE)
+    assert_absent(raw, KNIFE)
+    assert str(err.value).endswith("check the download source (--url)")
+
+
+def test_error_hints_name_real_fetch_options() -> None:
+    """The download errors point at 'geomprep fetch --url' (there is no --base-url)."""
+    options = {opt for param in cli.fetch_cmd.params for opt in param.opts}
+    assert "--url" in options and "--base-url" not in options
 
 
 def test_fetch_unknown_name(tmp_path: Path) -> None:
@@ -438,234 +418,3 @@ def test_fetch_redoes_incomplete_object(server: _Server, tmp_path: Path) -> None
     mesh = raw / KNIFE / "google_16k" / "textured.obj"
     assert mesh.read_text() != "half a mesh"
     assert read_source(raw, KNIFE)["mesh_sha256"] == hashlib.sha256(mesh.read_bytes()).hexdigest()
-
-
-# --------------------------------------------------------------------------------------------
-# read_masses, complete_objects, read_source
-# --------------------------------------------------------------------------------------------
-
-
-def test_read_masses(tmp_path: Path) -> None:
-    path = tmp_path / "m.csv"
-    path.write_text("object,mass_kg\na,0.5\n\nb_2,1e-3\n")
-    assert read_masses(path) == {"a": 0.5, "b_2": 0.001}
-
-
-@pytest.mark.parametrize(
-    ("text", "pattern"),
-    [
-        ("", "header"),
-        ("name,mass\na,1\n", "header"),
-        ("object,mass_kg\na\n", r":2: expected 2 columns"),
-        ("object,mass_kg\na,1\nb,heavy\n", r":3: mass of 'b'"),
-        ("object,mass_kg\na,-1\n", "positive"),
-        ("object,mass_kg\na,0\n", "positive"),
-        ("object,mass_kg\na,nan\n", "positive"),
-        ("object,mass_kg\na,1\na,2\n", "twice"),
-        ("object,mass_kg\n../x,1\n", "invalid object name"),
-    ],
-)
-def test_read_masses_malformed(tmp_path: Path, text: str, pattern: str) -> None:
-    path = tmp_path / "m.csv"
-    path.write_text(text)
-    with pytest.raises(GeomprepError, match=pattern) as err:
-        read_masses(path)
-    assert "\n" not in str(err.value)
-
-
-def test_read_masses_missing_file(tmp_path: Path) -> None:
-    with pytest.raises(GeomprepError, match="cannot read masses file"):
-        read_masses(tmp_path / "nope.csv")
-
-
-def test_complete_objects_and_read_source_missing(tmp_path: Path) -> None:
-    assert complete_objects(tmp_path / "absent") == []
-    (tmp_path / "half").mkdir()
-    assert complete_objects(tmp_path) == []
-    with pytest.raises(GeomprepError, match="not in"):
-        read_source(tmp_path, "half")
-    with pytest.raises(GeomprepError, match="invalid object name"):
-        read_source(tmp_path, "../etc")
-
-
-# --------------------------------------------------------------------------------------------
-# import_directory
-# --------------------------------------------------------------------------------------------
-
-needs_ycb = pytest.mark.skipif(not YCB_DIR.is_dir(), reason=f"no YCB copy at {YCB_DIR}")
-
-
-@needs_ycb
-def test_import_ycb_dir_with_masses(tmp_path: Path) -> None:
-    raw = tmp_path / "raw"
-    assert import_directory(YCB_DIR, raw, [DICE, KNIFE]) == [KNIFE, DICE]
-
-    assert complete_objects(raw) == [KNIFE, DICE]
-    masses = read_masses(YCB_DIR / "masses.csv")
-    for name in (KNIFE, DICE):
-        src = read_source(raw, name)
-        assert src["mesh"] == "google_16k/textured.obj"
-        assert src["mass_kg"] == masses[name] and src["density_kg_m3"] is None
-        assert src["origin"] == f"dir: {YCB_DIR.resolve()}"
-        copied = raw / name / "google_16k"
-        assert sorted(p.name for p in copied.iterdir()) == sorted(
-            p.name for p in (YCB_DIR / name / "google_16k").iterdir()
-        )
-        assert (
-            src["mesh_sha256"] == hashlib.sha256((copied / "textured.obj").read_bytes()).hexdigest()
-        )
-    assert read_source(raw, KNIFE)["mass_kg"] == 0.031
-    mesh = trimesh.load(raw / DICE / "google_16k" / "textured.obj", force="mesh")
-    assert len(mesh.faces) > 1000
-
-
-@needs_ycb
-def test_import_skips_complete_unless_forced(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    raw = tmp_path / "raw"
-    import_directory(YCB_DIR, raw, [DICE])
-    copies: list[Path] = []
-    real_copy = fetch._copy_file
-    monkeypatch.setattr(fetch, "_copy_file", lambda s, d: (copies.append(s), real_copy(s, d)))
-
-    assert import_directory(YCB_DIR, raw, [DICE]) == [DICE]
-    assert copies == []
-    assert import_directory(YCB_DIR, raw, [DICE], force=True, density_kg_m3=900.0) == [DICE]
-    assert len(copies) == 3
-    assert complete_objects(raw) == [DICE]
-    assert not list(raw.glob(".*"))
-
-
-def _write_plain_meshes(src: Path) -> None:
-    """box.stl, ball.ply and a textured cube.obj (with its mtl and texture) in ``src``."""
-    src.mkdir(parents=True, exist_ok=True)
-    trimesh.creation.box(extents=(0.1, 0.2, 0.3)).export(src / "box.stl")
-    trimesh.creation.icosphere(subdivisions=1, radius=0.05).export(src / "ball.ply")
-    obj = trimesh.creation.box(extents=(0.05, 0.05, 0.05)).export(file_type="obj")
-    (src / "cube.obj").write_text("mtllib mats/cube.mtl\nusemtl red\n" + obj)
-    (src / "mats").mkdir()
-    (src / "mats" / "cube.mtl").write_text("newmtl red\nmap_Kd -s 1 1 1 ../tex/red.png\n")
-    (src / "tex").mkdir()
-    (src / "tex" / "red.png").write_bytes(_png_bytes())
-    (src / "unrelated.png").write_bytes(_png_bytes())
-    (src / "notes.txt").write_text("not a mesh")
-
-
-def test_import_plain_files_with_density(tmp_path: Path) -> None:
-    src, raw = tmp_path / "meshes", tmp_path / "raw"
-    _write_plain_meshes(src)
-
-    assert import_directory(src, raw, density_kg_m3=1000.0) == ["ball", "box", "cube"]
-
-    for name, ext in (("ball", "ply"), ("box", "stl"), ("cube", "obj")):
-        rec = read_source(raw, name)
-        assert rec["mesh"] == f"{name}.{ext}"
-        assert rec["mass_kg"] is None and rec["density_kg_m3"] == 1000.0
-        mesh = trimesh.load(raw / name / rec["mesh"], force="mesh")
-        assert mesh.is_watertight
-    assert trimesh.load(raw / "box" / "box.stl").volume == pytest.approx(0.006)
-    # The OBJ keeps its material and texture at the paths its mtllib/map_Kd lines name.
-    assert (raw / "cube" / "mats" / "cube.mtl").is_file()
-    assert (raw / "cube" / "tex" / "red.png").is_file()
-    assert not (raw / "cube" / "unrelated.png").exists()
-
-
-def test_import_mixed_layout_with_src_masses(tmp_path: Path) -> None:
-    src, raw = tmp_path / "src", tmp_path / "raw"
-    _write_plain_meshes(src)
-    ycb = src / "my_can" / "google_16k"
-    ycb.mkdir(parents=True)
-    (ycb / "textured.obj").write_text(_box_obj())
-    (ycb / "textured.mtl").write_text(MTL_TEXT)
-    (ycb / "texture_map.png").write_bytes(_png_bytes())
-    (src / "masses.csv").write_text("object,mass_kg\nmy_can,0.35\nbox,0.2\n")
-
-    assert import_directory(src, raw, ["my_can", "box", "ball"]) == ["ball", "box", "my_can"]
-
-    assert read_source(raw, "my_can")["mass_kg"] == 0.35
-    assert read_source(raw, "my_can")["mesh"] == "google_16k/textured.obj"
-    assert read_source(raw, "box")["mass_kg"] == 0.2
-    assert read_source(raw, "ball")["density_kg_m3"] == 500.0  # not in masses.csv: density
-    assert "cube" not in complete_objects(raw)
-
-    # An explicit masses file wins over src/masses.csv.
-    other = tmp_path / "other.csv"
-    other.write_text("object,mass_kg\nbox,0.9\n")
-    import_directory(src, raw, ["box"], masses_csv=other, force=True)
-    assert read_source(raw, "box")["mass_kg"] == 0.9
-
-
-def test_import_unknown_name(tmp_path: Path) -> None:
-    src = tmp_path / "src"
-    _write_plain_meshes(src)
-    with pytest.raises(GeomprepError, match=r"'?bxo'? not found") as err:
-        import_directory(src, tmp_path / "raw", ["bxo"])
-    assert "NAME/google_16k/textured.obj" in str(err.value)
-    assert complete_objects(tmp_path / "raw") == []
-
-
-def test_import_empty_directory(tmp_path: Path) -> None:
-    (tmp_path / "empty").mkdir()
-    (tmp_path / "empty" / "readme.txt").write_text("nothing here")
-    with pytest.raises(GeomprepError, match=r"no objects found.*expected"):
-        import_directory(tmp_path / "empty", tmp_path / "raw")
-    with pytest.raises(GeomprepError, match="not a directory"):
-        import_directory(tmp_path / "missing", tmp_path / "raw")
-
-
-def test_import_invalid_file_name(tmp_path: Path) -> None:
-    src = tmp_path / "src"
-    src.mkdir()
-    trimesh.creation.box().export(src / "my box.stl")
-    with pytest.raises(GeomprepError, match=r"invalid object names.*my box.stl"):
-        import_directory(src, tmp_path / "raw")
-
-
-def test_import_bad_density(tmp_path: Path) -> None:
-    src = tmp_path / "src"
-    _write_plain_meshes(src)
-    with pytest.raises(GeomprepError, match="density"):
-        import_directory(src, tmp_path / "raw", density_kg_m3=0.0)
-
-
-def test_import_crash_midway_then_rerun(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    src, raw = tmp_path / "src", tmp_path / "raw"
-    _write_plain_meshes(src)
-    real_copy = fetch._copy_file
-    calls = {"n": 0}
-
-    def flaky_copy(a: Path, b: Path) -> None:
-        calls["n"] += 1
-        if calls["n"] == 2:  # the cube's mtl, after its obj was copied
-            raise OSError(28, "No space left on device")
-        real_copy(a, b)
-
-    monkeypatch.setattr(fetch, "_copy_file", flaky_copy)
-    with pytest.raises(GeomprepError, match="No space left") as err:
-        import_directory(src, raw, ["cube"])
-    assert "\n" not in str(err.value)
-    _assert_absent(raw, "cube")
-
-    monkeypatch.setattr(fetch, "_copy_file", real_copy)
-    assert import_directory(src, raw, ["cube"]) == ["cube"]
-    assert complete_objects(raw) == ["cube"]
-
-
-def test_import_after_hard_crash_leftovers(tmp_path: Path) -> None:
-    """A killed process leaves a half object dir and a staging dir: the rerun cleans both."""
-    src, raw = tmp_path / "src", tmp_path / "raw"
-    _write_plain_meshes(src)
-    (raw / "box").mkdir(parents=True)
-    (raw / "box" / "box.stl").write_bytes(b"half")
-    dead_pid = 2**22 + 12345  # above Linux's pid_max default: no such process
-    stage = raw / f".box.tmp-{dead_pid}"
-    stage.mkdir()
-    (stage / "source.json").write_text(json.dumps({"name": "box"}))
-    assert complete_objects(raw) == []
-
-    assert import_directory(src, raw, ["box"]) == ["box"]
-
-    assert complete_objects(raw) == ["box"]
-    assert (raw / "box" / "box.stl").read_bytes() == (src / "box.stl").read_bytes()
-    assert not stage.exists()
