@@ -48,7 +48,7 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=5)
     parser.add_argument(
         "--compile", action=argparse.BooleanOptionalAction, default=True,
-        help="torch.compile the env's task computations (as trainer run does by default)",
+        help="torch.compile the env's task computations (trainer run --compile)",
     )
     args = parser.parse_args()
     torch.set_num_threads(1)

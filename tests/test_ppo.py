@@ -6,6 +6,8 @@ import csv
 import dataclasses
 import json
 import math
+import shutil
+import sys
 from pathlib import Path
 
 import pytest
@@ -17,6 +19,7 @@ from torchrl.objectives import ClipPPOLoss
 
 from geomprep.config import Config
 from trainer.cli import cli
+from trainer.cli import main as trainer_main
 from trainer.config import load_train_config
 from trainer.env import GraspEnv
 from trainer.evaluation import evaluate, run_episodes
@@ -212,3 +215,131 @@ def test_cli_run_eval_play_report(builtin_data: Config, tmp_path: Path) -> None:
     assert "| sq | sdf | ur5e | 1 |" in (tmp_path / "report" / "report.md").read_text()
     result = runner.invoke(cli, ["run", "--resume", str(tmp_path / "nothing")])
     assert result.exit_code != 0
+
+
+# ---- resuming, rerunning and extending runs through the command line --------------------------
+
+
+def main(argv: list[str], monkeypatch: pytest.MonkeyPatch, capsys) -> tuple[int, str, str]:  # noqa: ANN001
+    """The real entry point, as the installed ``trainer`` script runs it: (exit code, stdout,
+    stderr). Unlike click's test runner it does not turn an EOFError into "Aborted!" itself."""
+    monkeypatch.setattr(sys, "argv", ["trainer", *argv])
+    try:
+        trainer_main()
+        code = 0
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def metrics_iterations(run_dir: Path) -> list[int]:
+    rows = csv.DictReader((run_dir / "metrics.csv").read_text().splitlines())
+    return [int(r["iteration"]) for r in rows]
+
+
+@pytest.fixture(scope="module")
+def killed_run(builtin_data: Config, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 4-iteration run killed during iteration 4 (checkpoints at 2: iter_000002.pt, last.pt;
+    metrics rows 1-3). Tests copy it."""
+    path = tmp_path_factory.mktemp("killed") / "run"
+    train(tiny_config(builtin_data.data_dir, iterations=4), path, progress=False, stop_after=3)
+    return path
+
+
+@pytest.mark.parametrize("damage", ["empty", "truncated"])
+def test_resume_falls_back_from_an_unreadable_last_checkpoint(
+    killed_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys, damage: str  # noqa: ANN001
+) -> None:
+    run_dir = tmp_path / "run"
+    shutil.copytree(killed_run, run_dir)
+    last = run_dir / "checkpoints" / "last.pt"
+    data = last.read_bytes()
+    last.write_bytes(b"" if damage == "empty" else data[: len(data) // 2])
+    # An empty last.pt used to end as "aborted" (click's reading of an EOFError, as Ctrl-C).
+    code, _, err = main(["run", "--resume", str(run_dir)], monkeypatch, capsys)
+    assert code == 0, err
+    warning = next(line for line in err.splitlines() if line.startswith("warning:"))
+    assert "unreadable last.pt" in warning and "using iter_000002.pt (iteration 2)" in warning
+    assert metrics_iterations(run_dir) == [1, 2, 3, 4]
+    assert torch.load(last, weights_only=False)["iteration"] == 4
+
+
+def test_resume_without_a_readable_checkpoint_is_one_line(
+    killed_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
+) -> None:
+    run_dir = tmp_path / "run"
+    shutil.copytree(killed_run, run_dir)
+    for path in (run_dir / "checkpoints").iterdir():
+        path.write_bytes(b"")
+    code, _, err = main(["run", "--resume", str(run_dir)], monkeypatch, capsys)
+    assert code == 1 and err.strip() == (
+        f"error: {run_dir / 'checkpoints'}: no readable checkpoint (last.pt (EOFError), "
+        "iter_000002.pt (EOFError)): start the run again with --overwrite"
+    )
+
+
+def test_rerun_is_refused_and_overwrite_starts_clean(
+    killed_run: Path, builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys,  # noqa: ANN001
+) -> None:
+    run_dir = tmp_path / "run"
+    shutil.copytree(killed_run, run_dir)
+    shutil.rmtree(run_dir / "checkpoints")  # killed before its first checkpoint
+    config = tmp_path / "tiny.toml"
+    config.write_text(
+        "max_steps = 20\n[ppo]\nframes_per_env = 8\nminibatches = 2\nmin_minibatch = 1\n"
+        "epochs = 1\nhidden = [32, 32, 32]\n"
+    )
+    argv = ["run", "--repr", "com", "--objects", OBJECTS, "--num-envs", "4", "--steps", "32",
+            "--run-dir", str(run_dir), "--config", str(config), "--data-dir",
+            str(builtin_data.data_dir)]
+    code, _, err = main(argv, monkeypatch, capsys)
+    # Rerunning used to append a second run's rows to metrics.csv.
+    assert code == 1 and err.strip() == (
+        f"error: {run_dir} already holds a run: start it afresh with --overwrite, or choose "
+        "another --run-dir or --seed"
+    )
+    assert metrics_iterations(run_dir) == [1, 2, 3]
+    code, _, err = main([*argv, "--overwrite"], monkeypatch, capsys)
+    assert code == 0, err
+    assert metrics_iterations(run_dir) == [1]
+    assert json.loads((run_dir / "config.json").read_text())["env"]["representation"] == "com"
+    # One 8-step iteration of 20-step episodes: no episode ended, so no success rate yet.
+    assert "success=-" in err and "nan" not in err
+
+
+def test_resume_with_steps_extends_the_run(
+    killed_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
+) -> None:
+    run_dir = tmp_path / "run"
+    shutil.copytree(killed_run, run_dir)
+    code, out, err = main(["run", "--resume", str(run_dir), "--steps", "160"], monkeypatch, capsys)
+    assert code == 0, err
+    assert "extended from 128 to 160 steps" in out
+    assert metrics_iterations(run_dir) == [1, 2, 3, 4, 5]
+    assert json.loads((run_dir / "config.json").read_text())["run"]["total_steps"] == 160
+    code, _, err = main(["run", "--resume", str(run_dir)], monkeypatch, capsys)
+    assert code == 1 and err.strip() == (
+        f"error: {run_dir} is complete (160 steps of 160): pass --steps with more than 160 to "
+        "extend it"
+    )
+
+
+def test_eval_and_play_bad_input_is_one_line(
+    killed_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
+) -> None:
+    run_dir = str(killed_run)
+    for argv, expected in [
+        (["play", run_dir, "--object", "no_such_object"], "error: unknown object"),
+        (["play", run_dir, "--object", OBJECTS], f"error: --object {OBJECTS}: names several"),
+        (["eval", run_dir, "--objects", "no_such_object"], "error: unknown object"),
+    ]:
+        code, _, err = main(argv, monkeypatch, capsys)
+        assert code == 1 and err.startswith(expected) and err.count("\n") == 1, err
+    # A run directory killed before its first checkpoint has nothing to evaluate.
+    empty = tmp_path / "run"
+    empty.mkdir()
+    shutil.copy(killed_run / "config.json", empty)
+    code, _, err = main(["eval", str(empty)], monkeypatch, capsys)
+    assert code == 1 and err.startswith(f"error: {empty}: no checkpoint yet"), err

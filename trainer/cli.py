@@ -1,4 +1,8 @@
-"""The ``trainer`` command line: the scripted-grasp demo, PPO training, evaluation, reports."""
+"""The ``trainer`` command line: the scripted-grasp demo, PPO training, evaluation, reports.
+
+Torch, TorchRL and MuJoCo take seconds to import, so only the commands that use them import them:
+``trainer --help`` and a mistyped option answer at once (``tests/test_trainer_cli.py``).
+"""
 
 from __future__ import annotations
 
@@ -17,12 +21,37 @@ from trainer.config import (  # noqa: E402
     REPRESENTATIONS,
     REWARDS,
     ROBOTS,
+    check_device,
     load_env_config,
     load_train_config,
+    override,
 )
 from trainer.errors import TrainerError  # noqa: E402
 
 DEMO_OBJECTS = "077_rubiks_cube,013_apple,005_tomato_soup_can"
+RUN_OPTIONS = {
+    "representation": "--repr", "reward.kind": "--reward", "robot.kind": "--robot",
+    "objects": "--objects", "num_envs": "--num-envs", "device": "--device",
+    "data_dir": "--data-dir", "compile": "--compile", "total_steps": "--steps", "seed": "--seed",
+}
+"""The config field each ``trainer run`` option sets (a bad value's error names the option)."""
+
+
+def _at_least(option: str, value: int, minimum: int) -> None:
+    if value < minimum:
+        raise TrainerError(f"{option} {value}: must be >= {minimum}")
+
+
+def _run_dir(path: Path) -> Path:
+    # Checked here rather than by click so that the error is one line like every other.
+    if not path.is_dir():
+        raise TrainerError(f"{path}: no such run directory: pass one written by trainer run")
+    return path
+
+
+def _device(device: str | None) -> None:
+    if device is not None:
+        check_device(device, f"--device {device}", "use --device cpu")
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -74,12 +103,15 @@ def demo(
     Runs TRIALS randomized trials per object at once and prints how many lifted the object by
     0.2 m. The video shows the first trial of each object (up to four) side by side.
     """
+    _at_least("--trials", trials, 1)
+    _at_least("--seed", seed, 0)
     from trainer.env import GraspEnv
     from trainer.objects import resolve_names
     from trainer.scripted import ScriptedGrasp, run_scripted_grasp
 
     overrides = {"data_dir": data_dir} if data_dir else {}
     cfg = load_env_config(config_path, **overrides)
+    check_device(cfg.device, f"device {cfg.device!r} in {config_path}", 'set device = "cpu"')
     names = resolve_names(objects, cfg.data_dir)
     cfg = dataclasses.replace(
         cfg, num_envs=trials * len(names), objects=",".join(names),
@@ -126,15 +158,19 @@ def demo(
 @click.option("--run-dir", type=click.Path(path_type=Path, file_okay=False), default=None,
               help="Where the run goes [runs/REPR-REWARD-ROBOT-sSEED].")
 @click.option("--resume", "resume_dir", type=click.Path(path_type=Path, file_okay=False),
-              default=None, help="Continue a killed run from its last checkpoint.")
-@click.option("--compile/--no-compile", "compile_env", default=True, show_default=True,
+              default=None, help="Continue a killed run from its last checkpoint (with --steps: "
+              "extend it to that many steps; other options cannot change it).")
+@click.option("--overwrite", is_flag=True,
+              help="Delete the run already in the run directory and start afresh.")
+@click.option("--compile/--no-compile", "compile_env", default=None,
               help="torch.compile the per-step task computations (faster after ~1 min of "
-              "compilation; needs a C++ compiler on CPU).")
+              "compilation; needs a C++ compiler on CPU) [default: compile in the config, "
+              "false].")
 @_config_options
 def run(
     representation: str | None, reward: str | None, robot: str | None, objects: str | None,
     num_envs: int | None, steps: int | None, seed: int | None, device: str | None,
-    run_dir: Path | None, resume_dir: Path | None, compile_env: bool,
+    run_dir: Path | None, resume_dir: Path | None, overwrite: bool, compile_env: bool | None,
     config_path: Path | None, data_dir: Path | None,
 ) -> None:
     """Train a grasping policy with PPO (TorchRL collector, GAE, ClipPPOLoss, Adam).
@@ -142,44 +178,77 @@ def run(
     The run directory gets config.json (everything resolved), metrics.csv and tb/ (TensorBoard),
     and checkpoints/. Options override the --config TOML ([ppo], [run] and env sections).
     """
-    from trainer.ppo import train
-
     if resume_dir is not None:
-        run_path = train(None, resume_dir, resume=True).path  # type: ignore[arg-type]
-        click.echo(f"run: {run_path}")
+        # A resumed run continues bit for bit with its own config.json: an option that would
+        # change it is refused rather than silently ignored.
+        compile_option = {True: "--compile", False: "--no-compile", None: None}[compile_env]
+        given = {
+            "--repr": representation, "--reward": reward, "--robot": robot,
+            "--objects": objects, "--num-envs": num_envs, "--seed": seed, "--device": device,
+            "--run-dir": run_dir, "--config": config_path, "--data-dir": data_dir,
+            "--overwrite": overwrite or None, compile_option: compile_env,
+        }
+        for option, value in given.items():
+            if option is not None and value is not None:
+                raise TrainerError(
+                    f"{option} cannot change a resumed run (it keeps its config.json): drop "
+                    f"{option}, or start a new run with another --run-dir"
+                )
+        _resume(resume_dir, steps)
         return
     env = {
         k: v for k, v in {
             "representation": representation, "objects": objects, "num_envs": num_envs,
             "device": device, "data_dir": data_dir, "compile": compile_env,
+            "reward": {"kind": reward} if reward else None,
+            "robot": {"kind": robot} if robot else None,
         }.items() if v is not None
     }
     run_over = {k: v for k, v in {"total_steps": steps, "seed": seed}.items() if v is not None}
-    cfg = load_train_config(config_path, env=env, run=run_over)
-    if reward is not None or robot is not None:
-        cfg = dataclasses.replace(cfg, env=dataclasses.replace(
-            cfg.env,
-            reward=dataclasses.replace(cfg.env.reward, kind=reward or cfg.env.reward.kind),
-            robot=dataclasses.replace(cfg.env.robot, kind=robot or cfg.env.robot.kind),
-        ))
+    cfg = load_train_config(config_path, env=env, run=run_over, names=RUN_OPTIONS)
+    where = f"--device {device}" if device else f"device {cfg.env.device!r} in {config_path}"
+    check_device(cfg.env.device, where, "use --device cpu")
     if run_dir is None:
         e = cfg.env
         run_dir = Path("runs") / (
             f"{e.representation}-{e.reward.kind}-{e.robot.kind}-s{cfg.run.seed}"
         )
+
+    from trainer.ppo import train
+
     click.echo(f"run: {run_dir}")
-    train(cfg, run_dir)
+    train(cfg, run_dir, overwrite=overwrite)
+
+
+def _resume(run_dir: Path, steps: int | None) -> None:
+    from trainer.ppo import RunDir, train
+
+    cfg = RunDir(run_dir).load_config()
+    if steps is not None:
+        before = cfg.run.total_steps
+        cfg = dataclasses.replace(
+            cfg, run=override(cfg.run, {"total_steps": steps}, RUN_OPTIONS)
+        )
+        click.echo(f"run: {run_dir} (resumed; extended from {before:,} to {steps:,} steps)")
+    else:
+        click.echo(f"run: {run_dir} (resumed)")
+    train(cfg, run_dir, resume=True)
 
 
 @cli.command("eval")
-@click.argument("run_dir", type=click.Path(path_type=Path, file_okay=False, exists=True))
+@click.argument("run_dir", type=click.Path(path_type=Path))
 @click.option("--episodes-per-object", default=10, show_default=True)
 @click.option("--objects", default=None, help="Evaluate on these objects instead.")
-def eval_cmd(run_dir: Path, episodes_per_object: int, objects: str | None) -> None:
+@click.option("--device", default=None, help="Torch device [the run's].")
+def eval_cmd(
+    run_dir: Path, episodes_per_object: int, objects: str | None, device: str | None
+) -> None:
     """Success per object of the deterministic policy (eval/per_object.csv, eval/table.md)."""
+    _at_least("--episodes-per-object", episodes_per_object, 1)
+    _device(device)
     from trainer.evaluation import evaluate
 
-    result = evaluate(run_dir, episodes_per_object, objects)
+    result = evaluate(_run_dir(run_dir), episodes_per_object, objects, device=device)
     width = max(len(n) for n in result.names)
     for k, name in enumerate(result.names):
         click.echo(f"{name:<{width}}  {result.successes[k]}/{result.episodes[k]}")
@@ -187,41 +256,52 @@ def eval_cmd(run_dir: Path, episodes_per_object: int, objects: str | None) -> No
 
 
 @cli.command()
-@click.argument("run_dirs", nargs=-1, required=True,
-                type=click.Path(path_type=Path, file_okay=False, exists=True))
+@click.argument("run_dirs", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("--out", type=click.Path(path_type=Path, file_okay=False), default=Path("report"),
               show_default=True)
 @click.option("--compare", default=None, help="BASE,OTHER: per-object gain plot of OTHER over "
               "BASE (representation names or group labels).")
 def report(run_dirs: tuple[Path, ...], out: Path, compare: str | None) -> None:
     """Tables (final success, steps and minutes to 90 % / 95 %) and plots over runs and seeds."""
-    from trainer.report import write_report
-
     pair = tuple(compare.split(",")) if compare else None
     if pair is not None and len(pair) != 2:
         raise TrainerError("--compare takes two labels: BASE,OTHER (e.g. com,sq)")
+    for path in run_dirs:
+        _run_dir(path)
+    from trainer.report import write_report
+
     for path in write_report(list(run_dirs), out, pair):
         click.echo(str(path))
 
 
 @cli.command()
-@click.argument("run_dir", type=click.Path(path_type=Path, file_okay=False, exists=True))
+@click.argument("run_dir", type=click.Path(path_type=Path))
 @click.option("--object", "object_name", required=True, help="Object to grasp.")
 @click.option("--video", type=click.Path(path_type=Path, dir_okay=False),
               default=Path("play.mp4"), show_default=True)
 @click.option("--episodes", default=1, show_default=True, help="Episodes side by side.")
 @click.option("--seed", default=0, show_default=True)
-def play(run_dir: Path, object_name: str, video: Path, episodes: int, seed: int) -> None:
+@click.option("--device", default=None, help="Torch device [the run's].")
+def play(
+    run_dir: Path, object_name: str, video: Path, episodes: int, seed: int, device: str | None
+) -> None:
     """Render episodes of the trained (deterministic) policy into a video."""
+    _at_least("--episodes", episodes, 1)
+    _at_least("--seed", seed, 0)
+    _device(device)
     from trainer.env import GraspEnv
     from trainer.evaluation import run_episodes
+    from trainer.objects import resolve_names
     from trainer.ppo import load_agent
     from trainer.video import EnvRecorder
 
-    cfg, agent = load_agent(run_dir)
+    cfg, agent = load_agent(_run_dir(run_dir), device)
+    if len(resolve_names(object_name, cfg.env.data_dir)) != 1:
+        raise TrainerError(f"--object {object_name}: names several objects: name one")
     env = GraspEnv(dataclasses.replace(cfg.env, objects=object_name, num_envs=episodes), seed)
     recorder = EnvRecorder(env, range(min(episodes, 4)), width=480, height=360)
     success, length = run_episodes(env, agent.actor, on_step=recorder.capture)
+    recorder.capture_hold()  # 1 s more, so the video does not end on the lift
     recorder.save(video, fps=cfg.env.physics.control_hz)
     recorder.close()
     env.close()

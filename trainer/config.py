@@ -17,11 +17,13 @@ fighting its own weight), and hand position servos stronger than the real SIH's 
 from __future__ import annotations
 
 import dataclasses
+import json
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
-from geomprep.config import read_toml
+from geomprep.config import Checked, bounded, build_dataclass, field_error, read_toml
 from trainer.errors import TrainerError
 
 ACTION_DIM = 11
@@ -32,113 +34,127 @@ REWARDS = ("sdf", "com", "none")
 ROBOTS = ("ur5e", "floating")
 
 
+class _Checked(Checked):
+    """The trainer's configs refuse out-of-range values with its own error type."""
+
+    error: ClassVar[type[Exception]] = TrainerError
+
+
 @dataclass(frozen=True)
-class PhysicsConfig:
+class PhysicsConfig(_Checked):
     """Simulation timing and contact parameters."""
 
-    control_hz: float = 30.0
-    substeps: int = 10
+    control_hz: float = bounded(30.0, gt=0)
+    substeps: int = bounded(10, ge=1)
     """Physics steps per action; the timestep is 1 / (control_hz * substeps) s."""
-    iterations: int = 20
-    ls_iterations: int = 10
-    impratio: float = 1.0
+    iterations: int = bounded(20, ge=1)
+    ls_iterations: int = bounded(10, ge=0)
+    impratio: float = bounded(1.0, gt=0)
     """Frictional-to-normal constraint impedance ratio; above 1 makes friction stiffer (less
     creep of a held object), as MuJoCo recommends with elliptic cones."""
-    noslip_iterations: int = 0
-    table_size: tuple[float, float, float] = (0.4, 0.4, 0.02)
+    noslip_iterations: int = bounded(0, ge=0)
+    table_size: tuple[float, float, float] = bounded((0.4, 0.4, 0.02), gt=0)
     """Half-sizes of the table top (m); its top surface is at z = 0."""
-    table_friction: tuple[float, float, float] = (0.8, 0.005, 0.0001)
-    finger_friction: tuple[float, float, float] = (1.0, 0.01, 0.0001)
-    object_friction: tuple[float, float, float] = (1.0, 0.01, 0.0001)
-    condim: int = 4
+    table_friction: tuple[float, float, float] = bounded((0.8, 0.005, 0.0001), ge=0)
+    finger_friction: tuple[float, float, float] = bounded((1.0, 0.01, 0.0001), ge=0)
+    object_friction: tuple[float, float, float] = bounded((1.0, 0.01, 0.0001), ge=0)
+    condim: int = bounded(4, choices=(1, 3, 4, 6))
     solref: tuple[float, float] = (0.01, 1.0)
     solimp: tuple[float, float, float, float, float] = (0.9, 0.95, 0.001, 0.5, 2.0)
 
 
 @dataclass(frozen=True)
-class RobotConfig:
+class RobotConfig(_Checked):
     """Arm and hand actuation, and how an action moves them."""
 
-    kind: str = "ur5e"
+    kind: str = bounded("ur5e", choices=ROBOTS)
     """``ur5e`` (arm + hand, Jacobian-transpose control) or ``floating`` (hand on a 6-DoF mocap)."""
     base_pos: tuple[float, float, float] = (0.26, 0.63, -0.23)
     """UR5e base position (m; the table top centre is the origin): beside the table, below its
     top, where the authors' home configuration puts the hand above the table centre."""
-    arm_kp: float = 1500.0
-    arm_damping: float = 120.0
-    arm_armature: float = 0.2
-    hand_kp: float = 20.0
-    hand_forcerange: float = 5.0
+    arm_kp: float = bounded(1500.0, ge=0)
+    arm_damping: float = bounded(120.0, ge=0)
+    arm_armature: float = bounded(0.2, ge=0)
+    hand_kp: float = bounded(20.0, ge=0)
+    hand_forcerange: float = bounded(5.0, gt=0)
     """Hand servo torque limit (N·m); the real SIH servos give about 0.75 N·m."""
-    home_hand_height: float = 0.28
+    home_hand_height: float = bounded(0.28, gt=0)
     """Palm keypoint height above the table at reset (m)."""
-    pos_step: float = 0.02
+    pos_step: float = bounded(0.02, ge=0)
     """Hand translation per action at |a| = 1 (m)."""
-    rot_step: float = 0.1
+    rot_step: float = bounded(0.1, ge=0)
     """Hand rotation per action at |a| = 1 (rad)."""
-    jt_iterations: int = 2
+    jt_iterations: int = bounded(2, ge=1)
     """Jacobian-transpose refinements of the arm targets per action (they carry over between
     actions, so the targets keep converging while the command holds still)."""
-    jt_rotation_scale: float = 0.2
+    jt_rotation_scale: float = bounded(0.2, gt=0)
     """Metres per radian when position and rotation errors share one JT step."""
-    leash: float = 0.05
+    leash: float = bounded(0.05, gt=0)
     """The commanded hand position stays within this distance of the measured one (m)."""
     weld_solref: tuple[float, float] = (0.01, 1.0)
     """Softness of the floating hand's weld to its mocap target."""
 
 
 @dataclass(frozen=True)
-class RewardConfig:
+class RewardConfig(_Checked):
     """r = c1 / (|h_bar - dh| + eps_h) + c2 · 1(dh >= h_bar) + c3 / (d + eps_sdf) (the paper)."""
 
-    kind: str = "sdf"
+    kind: str = bounded("sdf", choices=REWARDS)
     """``sdf`` (d: fingertip distances to the surface), ``com`` (to the centre of mass) or
     ``none`` (c3 = 0)."""
-    h_bar: float = 0.2
+    h_bar: float = bounded(0.2, gt=0)
     c1: float = 0.5
     c2: float = 5000.0
     c3: float = 1.0
-    eps_h: float = 0.02
-    eps_sdf: float = 0.025
+    eps_h: float = bounded(0.02, gt=0)
+    eps_sdf: float = bounded(0.025, gt=0)
     h_bar_start: float = 0.2
     """Lift-height curriculum (training only): the target h_bar of the reward and of episode
     success starts here (m) and rises by ``h_bar_increment`` whenever the running training
     success at the current target reaches ``h_bar_promote``, until it is ``h_bar``. Equal to
     ``h_bar`` (the default, the paper): no curriculum. Evaluation always uses ``h_bar``."""
-    h_bar_increment: float = 0.02
-    h_bar_promote: float = 0.5
+    h_bar_increment: float = bounded(0.02, gt=0)
+    h_bar_promote: float = bounded(0.5, ge=0, le=1)
 
 
 @dataclass(frozen=True)
-class InitConfig:
+class InitConfig(_Checked):
     """Initial states: objects dropped at random poses and settled, cached as a bank."""
 
-    bank_size: int = 64
+    bank_size: int = bounded(64, ge=1)
     """Settled poses per object."""
-    drop_height: tuple[float, float] = (0.05, 0.15)
+    drop_height: tuple[float, float] = bounded((0.05, 0.15), ge=0)
     """Lowest object point above the table at release (m)."""
-    xy_range: float = 0.08
+    xy_range: float = bounded(0.08, ge=0)
     """Drop position is uniform in a square of this half-size around the table centre (m)."""
-    settle_seconds: float = 1.5
-    seed: int = 0
+    settle_seconds: float = bounded(1.5, ge=0)
+    seed: int = bounded(0, ge=0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        low, high = self.drop_height
+        if low > high:
+            raise field_error(
+                TrainerError, "drop_height", self.drop_height, "must be [lowest, highest]"
+            )
 
 
 @dataclass(frozen=True)
-class EnvConfig:
+class EnvConfig(_Checked):
     """The lifting task."""
 
-    num_envs: int = 64
-    representation: str = "sq"
+    num_envs: int = bounded(64, ge=1)
+    representation: str = bounded("sq", choices=REPRESENTATIONS)
     objects: str = "builtin"
     """Object set: ``builtin``, ``ycb``, ``all``, or a comma list of names."""
-    max_steps: int = 300
+    max_steps: int = bounded(300, ge=1)
     fall_height: float = -0.05
     """The object counts as off the table below this height (m, table top at 0)."""
     data_dir: Path = Path("data")
     device: str = "cpu"
-    nthread: int = 0
+    nthread: int = bounded(0, ge=0)
     """Simulation threads; 0 = all cores."""
-    sdf_dtype: str = "float16"
+    sdf_dtype: str = bounded("float16", choices=("float16", "float32"))
     """Storage of the SDF grids (``float16`` or ``float32``): float16 moves a looked-up distance
     by <= 10 um within 2 cm of a surface and halves the memory (78 objects at 200^3: 2.50 GB
     instead of 4.99 GB) and the lookup's memory traffic."""
@@ -152,60 +168,41 @@ class EnvConfig:
     reward: RewardConfig = field(default_factory=RewardConfig)
     init: InitConfig = field(default_factory=InitConfig)
 
-    def __post_init__(self) -> None:
-        if self.representation not in REPRESENTATIONS:
-            raise TrainerError(
-                f"unknown representation {self.representation!r}: "
-                f"choose one of {', '.join(REPRESENTATIONS)}"
-            )
-        if self.reward.kind not in REWARDS:
-            raise TrainerError(
-                f"unknown reward {self.reward.kind!r}: choose one of {', '.join(REWARDS)}"
-            )
-        if self.robot.kind not in ROBOTS:
-            raise TrainerError(
-                f"unknown robot {self.robot.kind!r}: choose one of {', '.join(ROBOTS)}"
-            )
-        if self.sdf_dtype not in ("float16", "float32"):
-            raise TrainerError(f"unknown sdf_dtype {self.sdf_dtype!r}: choose float16 or float32")
-        if self.num_envs < 1:
-            raise TrainerError(f"num_envs must be at least 1, got {self.num_envs}")
-
     @property
     def timestep(self) -> float:
         return 1.0 / (self.physics.control_hz * self.physics.substeps)
 
 
 @dataclass(frozen=True)
-class PPOConfig:
+class PPOConfig(_Checked):
     """PPO and the networks. The paper's schedule: 16,384 envs x 32 steps per rollout, 5 epochs,
     minibatch 32,768 (16 minibatches); with fewer envs the rollout length stays and the rollout
     is cut into at most ``minibatches`` minibatches of at least ``min_minibatch`` frames (tiny
     minibatches would make the update cost, not the simulation, the bottleneck on a CPU)."""
 
-    frames_per_env: int = 32
+    frames_per_env: int = bounded(32, ge=1)
     """Steps of every env per rollout (one PPO iteration)."""
-    epochs: int = 5
-    minibatches: int = 16
-    min_minibatch: int = 1024
-    lr: float = 3e-4
+    epochs: int = bounded(5, ge=1)
+    minibatches: int = bounded(16, ge=1)
+    min_minibatch: int = bounded(1024, ge=1)
+    lr: float = bounded(3e-4, gt=0)
     """Initial learning rate (Adam)."""
-    lr_schedule: str = "adaptive"
+    lr_schedule: str = bounded("adaptive", choices=("adaptive", "fixed"))
     """``adaptive``: after every epoch, divide the learning rate by 1.5 when the epoch's mean
     approximate KL to the rollout policy exceeds twice ``kl_target`` and multiply it by 1.5 when
     it is below half of it (rl_games' schedule; the paper trained with rl_games); ``fixed``:
     keep ``lr``."""
-    kl_target: float = 0.016
-    lr_bounds: tuple[float, float] = (1e-6, 1e-2)
-    gamma: float = 0.99
-    lmbda: float = 0.95
-    clip_epsilon: float = 0.2
+    kl_target: float = bounded(0.016, gt=0)
+    lr_bounds: tuple[float, float] = bounded((1e-6, 1e-2), gt=0)
+    gamma: float = bounded(0.99, ge=0, le=1)
+    lmbda: float = bounded(0.95, ge=0, le=1)
+    clip_epsilon: float = bounded(0.2, gt=0)
     entropy_coef: float = 0.0
-    critic_coef: float = 1.0
-    max_grad_norm: float = 1.0
-    hidden: tuple[int, ...] = (256, 128, 64)
+    critic_coef: float = bounded(1.0, ge=0)
+    max_grad_norm: float = bounded(1.0, gt=0)
+    hidden: tuple[int, ...] = bounded((256, 128, 64), ge=1)
     """The 3-layer MLP of the policy and of the value function."""
-    pointnet_hidden: tuple[int, ...] = (64, 128)
+    pointnet_hidden: tuple[int, ...] = bounded((64, 128), ge=1)
     """Shared per-point MLP of the point-cloud encoder (then max pooling)."""
     init_log_std: float = -0.5
     init_action_mean: tuple[float, ...] = (0.0,) * ACTION_DIM
@@ -215,24 +212,33 @@ class PPOConfig:
     of results/cpu-com-builtin-curriculum/."""
 
     def __post_init__(self) -> None:
-        if self.lr_schedule not in ("adaptive", "fixed"):
-            raise TrainerError(
-                f"unknown lr_schedule {self.lr_schedule!r}: choose adaptive or fixed"
+        super().__post_init__()
+        if self.lr_bounds[0] > self.lr_bounds[1]:
+            raise field_error(
+                TrainerError, "lr_bounds", self.lr_bounds, "must be [lowest, highest]"
+            )
+        for name in ("hidden", "pointnet_hidden"):
+            if not getattr(self, name):
+                raise field_error(TrainerError, name, getattr(self, name), "needs a layer size")
+        if len(self.init_action_mean) != ACTION_DIM:
+            raise field_error(
+                TrainerError, "init_action_mean", self.init_action_mean,
+                f"needs {ACTION_DIM} values, one per action",
             )
 
 
 @dataclass(frozen=True)
-class RunConfig:
+class RunConfig(_Checked):
     """The training run: length, seed, bookkeeping."""
 
-    total_steps: int = 10_000_000
+    total_steps: int = bounded(10_000_000, ge=1)
     """Environment steps (actions of one env count one) before the run stops."""
-    seed: int = 0
-    checkpoint_every: int = 10
+    seed: int = bounded(0, ge=0)
+    checkpoint_every: int = bounded(10, ge=1)
     """Iterations between checkpoints (the last one is always written)."""
-    success_window: int = 0
+    success_window: int = bounded(0, ge=0)
     """Episodes in the running success rate; 0 = the number of envs."""
-    torch_threads: int = 1
+    torch_threads: int = bounded(1, ge=1)
     """Threads of torch's own ops (the simulation has its own pool)."""
 
 
@@ -243,39 +249,30 @@ class TrainConfig:
     run: RunConfig = field(default_factory=RunConfig)
 
 
-def _build(cls: type, values: dict[str, Any], where: str) -> Any:
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    kwargs: dict[str, Any] = {}
-    for key, value in values.items():
-        if key not in fields:
-            raise TrainerError(f"{where}: unknown key {key!r}: valid keys are {', '.join(fields)}")
-        factory = fields[key].default_factory
-        nested = isinstance(factory, type) and dataclasses.is_dataclass(factory)
-        if isinstance(value, dict) and nested:
-            kwargs[key] = _build(factory, value, f"{where} [{key}]")
-        elif isinstance(value, list):
-            kwargs[key] = tuple(value)
-        elif key == "data_dir":
-            kwargs[key] = Path(value)
-        else:
-            kwargs[key] = value
-    return cls(**kwargs)
-
-
 def _read_toml(path: Path | None) -> dict[str, Any]:
     return {} if path is None else read_toml(path, TrainerError)
 
 
-def _env_config(values: dict[str, Any], where: str, overrides: dict[str, Any]) -> EnvConfig:
-    values = {k: v for k, v in values.items() if k not in ("ppo", "run")}
-    cfg = _build(EnvConfig, values, where)
-    return dataclasses.replace(cfg, **overrides) if overrides else cfg
+def _build(
+    cls: type, values: Mapping[str, Any], source: str | None, section: str = "", base: Any = None,
+    names: Mapping[str, str] | None = None,
+) -> Any:
+    return build_dataclass(
+        cls, values, source, TrainerError, section=section, base=base, names=names
+    )
+
+
+def _toml_env(values: dict[str, Any], path: Path | None) -> EnvConfig:
+    """The environment part of a TOML file: its top level and sections other than [ppo], [run]."""
+    env = {k: v for k, v in values.items() if k not in ("ppo", "run")}
+    return _build(EnvConfig, env, str(path)) if env else EnvConfig()
 
 
 def load_env_config(path: Path | None = None, **overrides: Any) -> EnvConfig:
-    """Defaults, then the TOML file at ``path``, then keyword ``overrides`` (top-level fields or
-    whole sections), e.g. ``load_env_config(representation="sdf", num_envs=16)``."""
-    return _env_config(_read_toml(path), str(path or "config"), overrides)
+    """Defaults, then the TOML file at ``path``, then keyword ``overrides`` (top-level fields,
+    whole sections or dicts of section fields), e.g. ``load_env_config(num_envs=16)``."""
+    cfg = _toml_env(_read_toml(path), path)
+    return _build(EnvConfig, overrides, None, base=cfg) if overrides else cfg
 
 
 def load_train_config(
@@ -283,25 +280,70 @@ def load_train_config(
     env: dict[str, Any] | None = None,
     ppo: dict[str, Any] | None = None,
     run: dict[str, Any] | None = None,
+    names: Mapping[str, str] | None = None,
 ) -> TrainConfig:
     """Defaults, then the TOML file (environment knobs as in ``load_env_config`` plus ``[ppo]``
-    and ``[run]`` sections), then the override dicts (command-line options)."""
+    and ``[run]`` sections), then the override dicts (command-line options; ``names`` maps their
+    keys, dotted below the section, to the options, which errors then name)."""
     values = _read_toml(path)
-    where = str(path or "config")
+    cfg = TrainConfig(
+        _toml_env(values, path),
+        _build(PPOConfig, values.get("ppo", {}), str(path), "ppo"),
+        _build(RunConfig, values.get("run", {}), str(path), "run"),
+    )
     return TrainConfig(
-        _env_config(values, where, env or {}),
-        _build(PPOConfig, {**values.get("ppo", {}), **(ppo or {})}, f"{where} [ppo]"),
-        _build(RunConfig, {**values.get("run", {}), **(run or {})}, f"{where} [run]"),
+        _build(EnvConfig, env or {}, None, base=cfg.env, names=names),
+        _build(PPOConfig, ppo or {}, None, base=cfg.ppo, names=names),
+        _build(RunConfig, run or {}, None, base=cfg.run, names=names),
     )
 
 
-def train_config_from_dict(values: dict[str, Any]) -> TrainConfig:
-    """The inverse of ``config_dict(train_config)`` (a run directory's config.json)."""
-    return TrainConfig(
-        _build(EnvConfig, values["env"], "config.json [env]"),
-        _build(PPOConfig, values["ppo"], "config.json [ppo]"),
-        _build(RunConfig, values["run"], "config.json [run]"),
-    )
+def override(section: Any, values: Mapping[str, Any], names: Mapping[str, str]) -> Any:
+    """A loaded config ``section`` with ``values`` (command-line options, named by ``names``
+    in errors) replacing its fields, checked like the file's."""
+    return _build(type(section), values, None, base=section, names=names)
+
+
+def train_config_from_dict(values: Any, source: str = "config.json") -> TrainConfig:
+    """The inverse of ``config_dict(train_config)`` (a run directory's config.json, named
+    ``source`` in errors)."""
+    return _build(TrainConfig, values, source)
+
+
+def read_train_config(path: Path) -> TrainConfig:
+    """A run directory's config.json; a missing or garbled file is a one-line error."""
+    fix = "pass a run directory written by trainer run"
+    try:
+        values = json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise TrainerError(
+            f"{Path(path).parent} is not a run directory (no config.json): {fix}"
+        ) from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise TrainerError(f"{path} is unreadable ({exc}): {fix}") from None
+    return train_config_from_dict(values, str(path))
+
+
+def check_device(device: str, where: str, fix: str) -> None:
+    """Refuse a device torch cannot use here: ``where`` names the setting (``--device cuda``),
+    ``fix`` what to do instead. Imports torch, so only the commands that need it pay for it."""
+    import torch
+
+    try:
+        parsed = torch.device(device)
+    except (RuntimeError, TypeError, ValueError):
+        raise TrainerError(f"{where}: not a torch device: use cpu or cuda[:N]") from None
+    if parsed.type not in ("cpu", "cuda"):
+        raise TrainerError(f"{where}: not supported (the trainer runs on cpu or cuda[:N]): {fix}")
+    if parsed.type == "cuda":
+        if not torch.cuda.is_available():
+            raise TrainerError(
+                f"{where}: no CUDA device is available (torch.cuda.is_available() is False): {fix}"
+            )
+        if parsed.index is not None and parsed.index >= torch.cuda.device_count():
+            raise TrainerError(
+                f"{where}: there are only {torch.cuda.device_count()} CUDA device(s): {fix}"
+            )
 
 
 def config_dict(cfg: Any) -> dict[str, Any]:

@@ -14,6 +14,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from geomprep.store import atomic_path
 from trainer.env import GraspEnv
+from trainer.errors import TrainerError
 from trainer.objects import resolve_names
 from trainer.ppo import RunDir, load_agent
 
@@ -66,10 +67,14 @@ def evaluate(
     objects: str | None = None,
     seed: int = 12345,
     max_envs: int = 1024,
+    device: str | None = None,
 ) -> EvalResult:
-    """Evaluate the run's last checkpoint on its object set (or ``objects``); writes
-    ``eval/per_object.csv`` and ``eval/table.md`` in the run directory."""
-    cfg, agent = load_agent(run_dir)
+    """Evaluate the run's last checkpoint on its object set (or ``objects``), on ``device``
+    (default: the run's); writes ``eval/per_object.csv`` and ``eval/table.md`` in the run
+    directory."""
+    if episodes_per_object < 1:
+        raise TrainerError(f"episodes_per_object must be >= 1, got {episodes_per_object}")
+    cfg, agent = load_agent(run_dir, device)
     names = resolve_names(objects or cfg.env.objects, cfg.env.data_dir)
     episodes = [0] * len(names)
     successes = [0] * len(names)

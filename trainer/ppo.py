@@ -7,18 +7,24 @@ statistics, log, checkpoint. The run directory layout is in ``RunDir``.
 
 Resuming: a checkpoint holds the networks, optimizer, normalizers, every random generator and
 the whole simulation state of every env, so ``train(..., resume=True)`` continues a killed run
-exactly as if it had never stopped (``tests/test_ppo.py`` checks this bit for bit).
+exactly as if it had never stopped (``tests/test_ppo.py`` checks this bit for bit). Checkpoints
+are written atomically; an unreadable ``last.pt`` falls back to the newest readable
+``iter_NNNNNN.pt``.
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
+import shutil
+import sys
 import time
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import torch
 from torch.utils.tensorboard import SummaryWriter
@@ -28,7 +34,7 @@ from torchrl.objectives.value import GAE
 from tqdm import tqdm
 
 from geomprep.store import atomic_path
-from trainer.config import TrainConfig, config_dict, train_config_from_dict
+from trainer.config import TrainConfig, check_device, config_dict, read_train_config
 from trainer.env import GraspEnv
 from trainer.errors import TrainerError
 from trainer.models import Agent
@@ -40,6 +46,11 @@ METRICS = (
     "action_std", "lr",
 )
 LOSS_KEYS = ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx", "clip_fraction")  # noqa: E501
+CHECKPOINT_KEYS = (
+    "iteration", "wall_time_s", "agent", "optimizer", "shuffle_rng", "torch_rng", "outcomes",
+    "episode_return", "episode_length", "env",
+)
+"""Keys every checkpoint has (a file without them is not one; the curriculum's are optional)."""
 
 
 @dataclass(frozen=True)
@@ -66,9 +77,22 @@ class RunDir:
         return self.checkpoints / "last.pt"
 
     def load_config(self) -> TrainConfig:
-        if not self.config.is_file():
-            raise TrainerError(f"{self.path} is not a run directory (no config.json)")
-        return train_config_from_dict(json.loads(self.config.read_text()))
+        if not self.path.is_dir():
+            raise TrainerError(
+                f"{self.path}: no such run directory: pass one written by trainer run"
+            )
+        return read_train_config(self.config)
+
+    def holds_run(self) -> bool:
+        """Whether a run (even one killed before its first checkpoint) wrote here."""
+        return any(p.exists() for p in (self.config, self.metrics, self.checkpoints))
+
+    def clear(self) -> None:
+        """Delete what a run writes here (nothing else in the directory)."""
+        for path in (self.config, self.metrics):
+            path.unlink(missing_ok=True)
+        for path in (self.checkpoints, self.path / "tb", self.path / "eval"):
+            shutil.rmtree(path, ignore_errors=True)
 
 
 def iteration_frames(cfg: TrainConfig) -> int:
@@ -83,23 +107,50 @@ def minibatch_size(cfg: TrainConfig) -> int:
 
 
 def train(
-    cfg: TrainConfig,
+    cfg: TrainConfig | None,
     run_dir: Path,
     resume: bool = False,
     progress: bool = True,
     stop_after: int | None = None,
+    overwrite: bool = False,
 ) -> RunDir:
     """Train (or, with ``resume``, continue) the run in ``run_dir``; returns it.
+
+    With ``resume``, ``cfg`` is None (the run's config.json) or that config with a larger
+    ``run.total_steps`` (extend the run). Without it, a directory that already holds a run is
+    refused unless ``overwrite`` (which deletes that run first): appending to its metrics would
+    mix two runs.
 
     ``stop_after``: leave after this many iterations of this call, as a killed run would (the
     work since the last checkpoint is lost); used by the resume test."""
     run = RunDir(Path(run_dir))
+    checkpoint = None
     if resume:
-        if not run.last.is_file():
-            raise TrainerError(f"{run.path}: no checkpoint to resume from (checkpoints/last.pt)")
-        cfg = run.load_config()
-    elif run.last.is_file():
-        raise TrainerError(f"{run.path} already holds a run: resume it with --resume {run.path}")
+        stored = run.load_config()
+        if cfg is None:
+            cfg = stored
+        _check_same_run(run, stored, cfg)
+        checkpoint = _load_checkpoint(run)
+        done, frames = checkpoint["iteration"], iteration_frames(cfg)
+        if done >= math.ceil(cfg.run.total_steps / frames):
+            raise TrainerError(
+                f"{run.path} is complete ({done * frames} steps of {cfg.run.total_steps}): "
+                f"pass --steps with more than {done * frames} to extend it"
+            )
+    elif run.holds_run():
+        if not overwrite:
+            can_resume = run.checkpoints.is_dir() and any(run.checkpoints.glob("*.pt"))
+            how = f"resume it with --resume {run.path}, or " if can_resume else ""
+            raise TrainerError(
+                f"{run.path} already holds a run: {how}start it afresh with --overwrite, or "
+                "choose another --run-dir or --seed"
+            )
+        run.clear()
+    assert cfg is not None
+    check_device(
+        cfg.env.device, f"device {cfg.env.device!r} of {run.path}",
+        "resume it where that device exists" if resume else "train with --device cpu",
+    )
     run.path.mkdir(parents=True, exist_ok=True)
     with atomic_path(run.config) as tmp:
         tmp.write_text(json.dumps(config_dict(cfg), indent=2))
@@ -129,9 +180,7 @@ def train(
     episode_return = torch.zeros(cfg.env.num_envs)
     episode_length = torch.zeros(cfg.env.num_envs)
     iteration, wall_offset = 0, 0.0
-    checkpoint = None
-    if resume:
-        checkpoint = torch.load(run.last, weights_only=False)
+    if checkpoint is not None:
         agent.load_state_dict(checkpoint["agent"])
         optimizer.load_state_dict(checkpoint["optimizer"])
         shuffle.set_state(checkpoint["shuffle_rng"])
@@ -224,7 +273,9 @@ def train(
                 if key != "iteration":
                     writer.add_scalar(key, value, iteration)
             bar.update(frames)
-            postfix = {"success": f"{row['success_rate']:.2f}", "it": iteration}
+            # No rate before the first episode ends: "nan" would read as a broken run.
+            success = f"{row['success_rate']:.2f}" if outcomes else "-"
+            postfix = {"success": success, "it": iteration}
             if row_h_bar != cfg.env.reward.h_bar:
                 postfix.update(h_bar=f"{row_h_bar:.2f}", at_h_bar=f"{target_rate:.2f}")
             bar.set_postfix(postfix)
@@ -342,14 +393,72 @@ def _save_checkpoint(
         torch.save(state, tmp)
 
 
-def load_agent(run_dir: Path, checkpoint: Path | None = None) -> tuple[TrainConfig, Agent]:
-    """A trained run's config and agent (networks + normalizers) from its last checkpoint."""
+def _check_same_run(run: RunDir, stored: TrainConfig, cfg: TrainConfig) -> None:
+    """A resumed run continues bit for bit only with its own config; its length may grow."""
+    changed = [
+        k for k in _changed_keys(config_dict(stored), config_dict(cfg)) if k != "run.total_steps"
+    ]
+    if changed:
+        raise TrainerError(
+            f"{run.path}: a resumed run keeps its config.json, but {', '.join(changed)} differ: "
+            "start a new run to change them"
+        )
+
+
+def _changed_keys(a: dict[str, Any], b: dict[str, Any], prefix: str = "") -> list[str]:
+    changed = []
+    for key in sorted(set(a) | set(b)):
+        if isinstance(a.get(key), dict) and isinstance(b.get(key), dict):
+            changed += _changed_keys(a[key], b[key], f"{prefix}{key}.")
+        elif a.get(key) != b.get(key):
+            changed.append(prefix + key)
+    return changed
+
+
+def _load_checkpoint(run: RunDir, map_location: str | None = None) -> dict[str, Any]:
+    """The state in ``last.pt`` or, if that is missing or unreadable (a truncated, empty or
+    corrupt file), in the newest readable ``iter_NNNNNN.pt``; a fallback is reported on
+    stderr."""
+    candidates = [run.last, *sorted(run.checkpoints.glob("iter_*.pt"), reverse=True)]
+    unreadable = []
+    for path in candidates:
+        if not path.is_file():
+            continue
+        try:
+            state = torch.load(path, weights_only=False, map_location=map_location)
+        except Exception as exc:  # noqa: BLE001 (whatever torch.load raises, the file is bad)
+            # An EOFError must not escape: click would turn it into "aborted", as for Ctrl-C.
+            unreadable.append(f"{path.name} ({type(exc).__name__})")
+            continue
+        if not isinstance(state, dict) or any(k not in state for k in CHECKPOINT_KEYS):
+            unreadable.append(f"{path.name} (not a checkpoint)")
+            continue
+        if unreadable:
+            print(
+                f"warning: {run.checkpoints}: unreadable {', '.join(unreadable)}; using "
+                f"{path.name} (iteration {state['iteration']})", file=sys.stderr, flush=True,
+            )
+        return state
+    if unreadable:
+        raise TrainerError(
+            f"{run.checkpoints}: no readable checkpoint ({', '.join(unreadable)}): start the run "
+            f"again with --overwrite"
+        )
+    raise TrainerError(f"{run.path}: no checkpoint yet ({run.last}): train it with trainer run")
+
+
+def load_agent(run_dir: Path, device: str | None = None) -> tuple[TrainConfig, Agent]:
+    """A trained run's config and agent (networks + normalizers) from its last readable
+    checkpoint, on ``device`` (default: the run's), which the returned config names."""
     run = RunDir(Path(run_dir))
     cfg = run.load_config()
-    path = checkpoint or run.last
-    if not path.is_file():
-        raise TrainerError(f"{run.path}: no checkpoint yet ({path}); train it with trainer run")
+    if device is not None:
+        cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, device=device))
+    check_device(
+        cfg.env.device, f"device {cfg.env.device!r} of {run.path}", "pass --device cpu"
+    )
+    state = _load_checkpoint(run, map_location="cpu")  # whatever device it was trained on
     agent = Agent(cfg.env.representation, cfg.ppo)
-    agent.load_state_dict(torch.load(path, weights_only=False)["agent"])
+    agent.load_state_dict(state["agent"])
     agent.eval()
-    return cfg, agent
+    return cfg, agent.to(cfg.env.device)
