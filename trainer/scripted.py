@@ -2,8 +2,9 @@
 can grasp at all, and the demo behind ``trainer demo``.
 
 Phases (in actions at 30 Hz): move above the object with the hand open and the thumb opposed,
-descend, close, lift. The hand turns about the vertical so that it squeezes the object across
-its narrowest horizontal width (from the object's bounding box).
+descend, close, lift, hold (1 s at the lift height, so that a video shows what happens to the
+object after the lift rather than ending on it). The hand turns about the vertical so that it
+squeezes the object across its narrowest horizontal width (from the object's bounding box).
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ class ScriptedGrasp:
     descend_steps: int = 35
     close_steps: int = 25
     lift_steps: int = 60
+    hold_steps: int = 30
+    """Actions after the lift with the grip and the lift goal held (1 s at 30 Hz)."""
     hover: float = 0.10
     """Height above the grasp pose at the end of the approach."""
     grasp_depth: float = 0.16
@@ -52,7 +55,13 @@ class ScriptedGrasp:
 
     @property
     def total_steps(self) -> int:
-        return self.approach_steps + self.descend_steps + self.close_steps + self.lift_steps
+        return (
+            self.approach_steps
+            + self.descend_steps
+            + self.close_steps
+            + self.lift_steps
+            + self.hold_steps
+        )
 
 
 def grasp_frame(env: GraspEnv) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -110,7 +119,7 @@ def scripted_action(env: GraspEnv, script: ScriptedGrasp, step: int, plan: dict)
         goal[:, 2] += script.hover * (1.0 - frac)
     elif t < script.approach_steps + script.descend_steps + script.close_steps:
         hand[:] = closed
-    else:
+    else:  # lift, then hold: the command settles on the lift goal and stays there
         hand[:] = closed
         goal[:, 2] += script.lift
     # Steer the command (not the measured hand): the command then settles on the goal exactly
