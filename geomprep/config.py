@@ -280,6 +280,15 @@ class MeshParams(Checked):
     """Vertices closer than this are merged in the geometry mesh."""
     texture_size: int = bounded(1024, ge=1)
     """The visual texture is resized to at most this many pixels a side (YCB ships 4096)."""
+    min_density_kg_m3: float = bounded(1.0, gt=0)
+    """Mass / volume below this is refused as a unit mistake (nothing solid is lighter than air).
+    The 78 YCB objects span 4.6 kg/m^3 (070-a_colored_wood_blocks: 10.8 g listed for a
+    14 x 14 x 17 cm scan) to 12,900 (042_adjustable_wrench: a thin scan's voxel volume)."""
+    max_density_kg_m3: float = bounded(25000.0, gt=0)
+    """Mass / volume above this is refused as a unit mistake (grams in masses.csv); the densest
+    element, osmium, is 22,590 kg/m^3."""
+    min_thickness_m: float = bounded(1e-4, ge=0)
+    """A mesh thinner than this across its thinnest direction is refused as flat (no volume)."""
 
 
 @dataclass(frozen=True)
@@ -299,6 +308,8 @@ class DecomposeParams(Checked):
     convex_ratio: float = bounded(0.97, gt=0, le=1)
     """A mesh with at least this fraction of its hull's volume becomes one hull (no CoACD)."""
     seed: int = bounded(0, ge=0)
+    max_faces: int = bounded(50_000, ge=1000)
+    """Larger meshes are decomposed from a coarser copy of this many triangles (mesh.reduced)."""
 
 
 @dataclass(frozen=True)
@@ -325,7 +336,11 @@ class SDFParams(Checked):
 
 @dataclass(frozen=True)
 class BBoxParams(Checked):
-    """Stage ``bbox``: oriented bounding box along the principal axes (no knobs yet)."""
+    """Stage ``bbox``: oriented bounding box along the principal axes."""
+
+    max_faces: int = bounded(50_000, ge=1000)
+    """Larger meshes run the min-volume axis search on a coarser copy of this many triangles
+    (mesh.reduced); the covariance and the extents always use the full mesh."""
 
 
 @dataclass(frozen=True)

@@ -20,9 +20,14 @@ Method (every value carries a proven error bound, ``TOLERANCE`` = 0.475 mm):
    queries (~1 s) are now most of the time.
 3. Voxels whose upper and lower bounds differ by <= TOLERANCE store the upper bound, which is an
    actual distance to a mesh point; all others get the exact query.
-4. Sign: only voxels inside the mesh's bounding box can be inside; there open3d counts ray
-   crossings along several random directions and takes the majority (odd ``SIGN_RAYS``), which
-   stays correct on meshes with small holes where a single parity ray would flip.
+4. Sign: the solid has union semantics (``mesh.solid``): closed parts that overlap, as CAD
+   exports leave them, are replaced by their union first, so distances are to the union's
+   surface and an interior face of the overlap neither shortens them nor flips parity.  Only
+   voxels inside the mesh's bounding box can be inside; there ``mesh.inside_mask`` counts ray
+   crossings along several directions and takes the majority (odd ``mesh.SIGN_RAYS``), which
+   stays correct on meshes with small holes where a single parity ray would flip.  Where an open
+   part overlaps another, a voxel enclosed twice cannot be signed by parity and raises
+   GeomprepError rather than getting a wrong sign.
 
 Thin objects: a blade or plate thinner than a voxel can have no voxel centre inside it, so its
 grid is positive everywhere although the object is solid.  The grid is still the exact distance
@@ -39,20 +44,20 @@ from dataclasses import dataclass
 
 import numpy as np
 import open3d as o3d
+import trimesh
 from threadpoolctl import threadpool_limits
 
+from geomprep import mesh as meshes
 from geomprep.errors import GeomprepError
 
 # Bump when the grid's values change, so cached assets are rebuilt.
-VERSION = 2
+VERSION = 3
 # Coarse-node strides (in voxels) tried in turn; voxels none certifies are queried directly.
 STRIDES = (4, 2)
 # Certified bound on |grid - true distance|, metres: under the 0.5 mm requirement with 25 um left
 # for float32 rounding of coordinates, of open3d's answers and of the bound arithmetic (each
 # ~1e-7 m at these magnitudes).  Every 0.1 mm here shrinks the exactly-queried shell by ~20 %.
 TOLERANCE = 4.75e-4
-# Odd number of ray directions voted over for the inside test.
-SIGN_RAYS = 7
 # Surface samples for the thickness estimate of thin objects.
 THICKNESS_SAMPLES = 4096
 
@@ -89,18 +94,24 @@ def compute_sdf(
     faces: (F, 3) int, vertex indices.
     resolution: voxels per axis R; extent: half side of the grid cube, metres.
     Returns an SDFGrid with grid (R, R, R) float32, metres, negative inside.
-    Raises GeomprepError for an empty mesh, non-finite vertices, bad face indices or a mesh that
-    does not fit inside the grid cube.
+    Raises GeomprepError for an empty mesh, non-finite vertices, bad face indices, a mesh that
+    does not fit inside the grid cube, or overlapping parts whose inside is ambiguous.
     """
     verts, tris = _validate(vertices, faces, resolution, extent)
     voxel = 2.0 * extent / resolution
+    parts = meshes.solid(trimesh.Trimesh(verts, tris, process=False))
+    if parts.n_unioned:
+        verts = np.asarray(parts.mesh.vertices, dtype=np.float64)
+        tris = np.asarray(parts.mesh.faces, dtype=np.int64)
     scene = _make_scene(verts, tris)
     centers = voxel_centers(resolution, extent)
 
     grid, n_exact = _unsigned_distance(scene, centers)
+    inside = _inside_mask(scene, parts, verts, centers)
     # In place: a full-grid np.where would allocate two more 32 MB temporaries.
-    np.negative(grid, out=grid, where=_inside_mask(scene, verts, centers))
+    np.negative(grid, out=grid, where=inside)
     info = _info(grid, verts, tris, scene, voxel, n_exact)
+    info["n_parts_unioned"] = parts.n_unioned
     return SDFGrid(
         grid=grid,
         bounds_min=np.full(3, -extent, dtype=np.float32),
@@ -319,9 +330,12 @@ def _certify_with_nodes(
 
 
 def _inside_mask(
-    scene: o3d.t.geometry.RaycastingScene, verts: np.ndarray, centers: np.ndarray
+    scene: o3d.t.geometry.RaycastingScene,
+    parts: meshes.Solid,
+    verts: np.ndarray,
+    centers: np.ndarray,
 ) -> np.ndarray:
-    """(R, R, R) bool, True where the voxel centre is inside the mesh by a majority ray vote.
+    """(R, R, R) bool, True where the voxel centre is inside the solid (``mesh.inside_mask``).
 
     Only voxels in the mesh's bounding box can be inside, so only those are tested.
     """
@@ -333,8 +347,8 @@ def _inside_mask(
         return inside
     axes = [centers[lo[d] : hi[d]] for d in range(3)]
     box = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).astype(np.float32)
-    votes = scene.compute_occupancy(o3d.core.Tensor(box), nsamples=SIGN_RAYS).numpy()
-    inside[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]] = votes > 0.5
+    votes = meshes.inside_mask(scene, parts.mesh, box.reshape(-1, 3), parts.open_overlap)
+    inside[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]] = votes.reshape(box.shape[:3])
     return inside
 
 

@@ -197,3 +197,52 @@ def test_thin_knife_is_flagged(knife: tuple[trimesh.Trimesh, SDFGrid]) -> None:
 def test_bad_input_raises(vertices: np.ndarray, faces: np.ndarray, words: str) -> None:
     with pytest.raises(GeomprepError, match=words):
         compute_sdf(vertices, faces)
+
+
+def _box_sdf(points: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """Exact signed distance, metres, of points (..., 3) to an origin-centred box."""
+    q = np.abs(points) - half
+    return np.linalg.norm(np.maximum(q, 0), axis=-1) + np.minimum(q.max(axis=-1), 0)
+
+
+def _grid_points(resolution: int, extent: float) -> np.ndarray:
+    c = voxel_centers(resolution, extent)
+    return np.stack(np.meshgrid(c, c, c, indexing="ij"), axis=-1)
+
+
+def _two_cubes(hole: bool = False) -> trimesh.Trimesh:
+    """Two 5 cm cubes overlapping by half along x, not unioned: together a 7.5 x 5 x 5 cm box
+    centred at the origin.  ``hole``: the second cube misses a face."""
+    a = trimesh.creation.box(extents=(0.05,) * 3)
+    a.apply_translation((-0.0125, 0, 0))
+    b = trimesh.creation.box(extents=(0.05,) * 3)
+    b.apply_translation((0.0125, 0, 0))
+    if hole:
+        b.update_faces(np.arange(len(b.faces)) != 0)
+    return trimesh.util.concatenate([a, b])
+
+
+def test_overlapping_closed_parts_are_one_solid() -> None:
+    # Before: +12.5 mm at the solid's centre (parity counts the overlap as outside) and
+    # distances to the interior faces.  Now the union's exact SDF.
+    parts = _two_cubes()
+    sdf = compute_sdf(parts.vertices, parts.faces, resolution=64, extent=0.1)
+    truth = _box_sdf(_grid_points(64, 0.1), np.array([0.0375, 0.025, 0.025]))
+    assert np.max(np.abs(sdf.grid - truth)) <= REQUIRED_ERROR_M
+    assert sdf.info["n_parts_unioned"] == 2
+
+
+def test_cavity_is_outside() -> None:
+    inner = trimesh.creation.box(extents=(0.03,) * 3)
+    inner.invert()  # wound inwards: a cavity
+    hollow = trimesh.util.concatenate([trimesh.creation.box(extents=(0.06,) * 3), inner])
+    sdf = compute_sdf(hollow.vertices, hollow.faces, resolution=64, extent=0.1)
+    p = _grid_points(64, 0.1)
+    truth = np.maximum(_box_sdf(p, np.full(3, 0.03)), -_box_sdf(p, np.full(3, 0.015)))
+    assert np.max(np.abs(sdf.grid - truth)) <= REQUIRED_ERROR_M
+
+
+def test_overlapping_parts_with_a_hole_are_refused() -> None:
+    parts = _two_cubes(hole=True)
+    with pytest.raises(GeomprepError, match="overlap.*ambiguous.*enclosed twice"):
+        compute_sdf(parts.vertices, parts.faces, resolution=64, extent=0.1)
