@@ -102,13 +102,18 @@ def _min_area_angle(p2: np.ndarray) -> float:
     return float(angles[int(np.argmin(area))])
 
 
+def _degenerate(evals: np.ndarray) -> list[bool]:
+    """Whether eigenvalue pairs (0, 1) and (1, 2) of ``evals`` (sorted decreasing) are close."""
+    scale = max(float(evals[0]), 1e-30)
+    return [bool((evals[i] - evals[i + 1]) / scale < DEGENERATE_TOL) for i in range(2)]
+
+
 def _refine_degenerate(v: np.ndarray, axes: np.ndarray, evals: np.ndarray) -> np.ndarray:
     """Replace arbitrary axes inside (nearly) degenerate eigenspaces by min-volume ones.
 
     ``axes`` columns are eigenvectors sorted by decreasing eigenvalue ``evals``.
     """
-    scale = max(float(evals[0]), 1e-30)
-    close = [(evals[i] - evals[i + 1]) / scale < DEGENERATE_TOL for i in range(2)]
+    close = _degenerate(evals)
     if all(close):
         # Fully degenerate (cube, sphere, dice): no preferred axis, take the global
         # minimum-volume box that trimesh finds over the hull.
@@ -159,16 +164,16 @@ def oriented_bbox(
     signed so that their largest-magnitude component is positive; column 2 is
     ``cross(col0, col1)``, so ``det(rotation) = +1``.
 
-    Large meshes: the covariance is one pass over the triangles, but the min-volume search in a
-    degenerate eigenspace grows with the square of the hull's size (84 s for a 330k-face
-    sphere's 160k hull vertices), so a mesh of more than ``max_faces`` triangles runs it on the
-    hull of ``mesh.reduced``'s coarser copy.  The centre and extents always come from all
-    vertices, so the containment guarantee below is unaffected.
+    Large meshes: the covariance, the hull and the 2-fold search are (near) linear in the mesh,
+    but the 3-fold search (``oriented_bounds``) grows with the square of the hull's size (41 s
+    on a 916k-face sphere), so a mesh of more than ``max_faces`` triangles runs it on the hull
+    of ``mesh.reduced``'s coarser copy.  The centre and extents always come from all vertices,
+    so the containment guarantee below is unaffected.
 
     Args:
         vertices: (N, 3) vertex positions in metres (object frame), N >= 10, finite.
         faces: (M, 3) integer vertex indices (may be empty, shape (0, 3)).
-        max_faces: triangle budget of the min-volume search; None uses every vertex.
+        max_faces: triangle budget of the 3-fold min-volume search; None: no budget.
 
     Returns:
         center: (3,) float32, box centre in metres (object frame; the midpoint of the vertex
@@ -183,10 +188,11 @@ def oriented_bbox(
     order = np.argsort(-evals)
     evals, axes = evals[order], evecs[:, order]
     f = np.asarray(faces)
-    shape = v
-    if max_faces is not None and len(f) > max_faces:
-        shape, _ = reduced(v, f, max_faces)
-    hull = _hull_points(shape)
+    if max_faces is not None and len(f) > max_faces and all(_degenerate(evals)):
+        # Only the global min-volume search grows with the square of the hull's size.
+        hull = _hull_points(reduced(v, f, max_faces)[0])
+    else:
+        hull = _hull_points(v)
     axes = _refine_degenerate(hull, axes, evals)
     # Re-orthonormalise so the later containment guarantee holds to float precision.
     axes, _ = np.linalg.qr(axes)
