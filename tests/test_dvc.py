@@ -22,6 +22,7 @@ def _dvc(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 @pytest.mark.skipif(
     shutil.which("dvc") is None, reason="DVC not installed (pip install -e '.[dvc]')"
 )
+@pytest.mark.slow
 def test_dvc_repro_builds_builtin_objects(tmp_path):
     project = tmp_path / "project"
     project.mkdir()

@@ -155,6 +155,7 @@ def test_representations_move_with_the_object(env: GraspEnv, name: str) -> None:
         assert (a.abs() < 0.5).all()
 
 
+@pytest.mark.slow
 def test_compiled_env_matches_eager(builtin_data: Config) -> None:
     """``compile = true`` runs the same task computations through torch.compile: the same
     commands, observations and rewards, up to float32 rounding (and the SDF lookup's other
@@ -182,6 +183,7 @@ def test_compiled_env_matches_eager(builtin_data: Config) -> None:
         assert torch.equal(b["done"], a["done"])
 
 
+@pytest.mark.slow
 def test_compile_failure_falls_back_to_eager(builtin_data: Config) -> None:
     # A machine without a working C++ compiler: the env warns once per function and runs eagerly.
     import torch._inductor.config as inductor

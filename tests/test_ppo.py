@@ -188,6 +188,7 @@ def test_eval_counts_match_a_manual_count(builtin_data: Config, tmp_path: Path) 
     assert "| **all (6 episodes)** |" in (run.path / "eval" / "table.md").read_text()
 
 
+@pytest.mark.slow
 def test_cli_run_eval_play_report(builtin_data: Config, tmp_path: Path) -> None:
     config = tmp_path / "tiny.toml"
     config.write_text(

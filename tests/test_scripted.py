@@ -42,6 +42,7 @@ def lifted_per_object(data_dir: Path, names: tuple[str, ...], seed: int) -> dict
     return {name: int(lifted[ids == k].sum()) for k, name in enumerate(names)}
 
 
+@pytest.mark.slow
 def test_scripted_grasp_lifts_ycb_objects(grasp_data: Config) -> None:
     counts = lifted_per_object(grasp_data.data_dir, GRASP_OBJECTS, seed=11)
     assert all(n >= 8 for n in counts.values()), counts
@@ -63,6 +64,7 @@ def test_scripted_grasp_fails_without_closing(builtin_data: Config) -> None:
     assert not lifted.any()
 
 
+@pytest.mark.slow
 def test_demo_command_writes_video(builtin_data: Config, tmp_path: Path) -> None:
     import imageio_ffmpeg
 
@@ -123,6 +125,7 @@ def _assert_framed(recorder, min_fill: float = 0.0) -> None:  # noqa: ANN001
         assert fill >= min_fill, (k, fill, "filmed from too far")
 
 
+@pytest.mark.slow
 def test_video_frames_hand_and_object_and_rolls_on_after_the_lift(builtin_data: Config) -> None:
     """The tracking camera keeps hand and object in frame through the whole grasp, and the video
     keeps at least 1 s of frames after the lift (the script's hold phase; then

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 import trimesh
@@ -412,10 +410,7 @@ def test_fit_quality_of_exact_fit_is_small() -> None:
 def test_fit_ycb_cracker_box() -> None:
     mesh = ycb_mesh("003_cracker_box")
     pts, _ = trimesh.sample.sample_surface(mesh, 20000, seed=0)
-    start = time.perf_counter()
-    params, diag = fit_superquadric(pts)
-    seconds = time.perf_counter() - start
-    assert seconds < 10.0  # ~0.3 s measured; generous for shared CI machines
+    params, diag = fit_superquadric(pts)  # ~0.3 s; bench/sq.py times the fits
     assert params[0] < 0.3 and params[1] < 0.3, "a box has small exponents"
     # Full extents of the fitted box match the mesh's extents along the fitted axes.
     local = to_canonical(params, mesh.vertices)
