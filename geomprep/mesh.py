@@ -157,6 +157,22 @@ def check_finite_and_units(vertices: np.ndarray, params: MeshParams, label: str)
         )
 
 
+def far_offset(vertices: np.ndarray) -> np.ndarray:
+    """(3,) float64 metres to subtract from vertices (V, 3) before integrating over them: their
+    bounding-box centre when it lies farther from the origin than the box's diagonal, else 0.
+
+    Far away (a 5 cm cube 3 km out), products of coordinates in the mass integrals cancel to a
+    25 % inertia error and open3d's float32 scenes lose millimetres.  Near the origin the error
+    is already at rounding level, and leaving those meshes alone keeps their results
+    bit-identical (a sphere's 64-vertex hull, for one, flips with the last bit).
+    """
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    centre = (lo + hi) / 2.0
+    if np.linalg.norm(centre) > np.linalg.norm(hi - lo):
+        return centre
+    return np.zeros(3)
+
+
 def thickness(vertices: np.ndarray) -> float:
     """Extent, metres, of vertices (V, 3) along their direction of least spread (the smallest
     principal axis): 0 when they all lie in one plane."""
@@ -389,7 +405,7 @@ def mass_properties(
     the vertices moved to their bounding-box centre first so a mesh far from the origin keeps
     its precision; the COM is returned in the mesh's own frame.  See :func:`_mass_properties`.
     """
-    shift = np.asarray(mesh.bounds, dtype=np.float64).mean(axis=0)
+    shift = far_offset(np.asarray(mesh.vertices, dtype=np.float64))
     centred = trimesh.Trimesh(np.asarray(mesh.vertices) - shift, mesh.faces, process=False)
     volume, com, inertia, method = _mass_properties(solid(centred, label), voxels_per_side, label)
     return volume, com + shift, inertia, method
@@ -506,9 +522,7 @@ def normalize_mesh(
     if len(vertices) == 0 or len(source.faces) == 0:
         raise GeomprepError(f"{label} is empty (no vertices or faces): re-export the mesh")
     check_finite_and_units(vertices, params, label)
-    # Work near the origin: 3 km away, products of coordinates in the mass integrals cancel to a
-    # 25 % inertia error, and open3d's float32 scenes would lose millimetres.
-    shift = (vertices.min(axis=0) + vertices.max(axis=0)) / 2.0
+    shift = far_offset(vertices)
     centred = trimesh.Trimesh(vertices - shift, np.asarray(source.faces), process=False)
     geometry = clean_geometry(centred, params.merge_tolerance_m, label)
     check_not_flat(np.asarray(geometry.vertices), params, label)
