@@ -418,7 +418,8 @@ def _mass_properties(
     a :func:`solid` whose vertices lie near the origin.
 
     A closed mesh integrates its own volume exactly ('volume'). An open scan (20 of the 78 YCB
-    meshes have holes) has no well-defined signed volume, so it is voxelized instead
+    meshes are not watertight: each is a closed part plus 1-3 stray triangles on non-manifold
+    edges) has no well-defined signed volume, so it is voxelized instead
     ('voxels'): a voxel centre is solid when most of several rays from it cross the surface an
     odd number of times, which small holes do not fool (:func:`inside_mask`). A scan too thin
     for that grid falls back to its convex hull ('convex_hull').
