@@ -39,6 +39,7 @@ from scipy.sparse.csgraph import connected_components
 
 from geomprep.config import MeshParams
 from geomprep.errors import GeomprepError
+from geomprep.syslibs import import_open3d
 
 if TYPE_CHECKING:
     import open3d
@@ -356,7 +357,7 @@ def inside_mask(
     the winding number along the ray of a consistently wound mesh) and a point that most rays
     find enclosed twice raises GeomprepError instead of getting the wrong sign.
     """
-    import open3d  # only inside tests need it
+    open3d = import_open3d()  # only inside tests need it
 
     points = np.ascontiguousarray(points, dtype=np.float32)
     if not open_overlap:
@@ -453,7 +454,7 @@ def _solid_voxels(parts: Solid, voxels_per_side: int, label: str) -> tuple[np.nd
     """Centres (N, 3) of the voxels inside an open mesh by a 7-ray majority vote, and the voxel
     size (m). The grid covers the mesh's bounding box with ``voxels_per_side`` along its
     longest side."""
-    import open3d as o3d  # only open scans need it
+    o3d = import_open3d()  # only open scans need it
 
     mesh = parts.mesh
     lo, hi = mesh.bounds
@@ -586,7 +587,7 @@ def reduced(
     faces = np.asarray(faces, dtype=np.int64)
     if len(faces) <= max_faces:
         return vertices, faces
-    import open3d as o3d  # only large meshes need it
+    o3d = import_open3d()  # only large meshes need it
 
     area = 0.0
     for start in range(0, len(faces), 1 << 16):  # in blocks: (F, 3, 3) temporaries cost 200 MB

@@ -49,12 +49,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
 import trimesh
 from threadpoolctl import threadpool_limits
 
 from geomprep import mesh as meshes
 from geomprep.errors import GeomprepError
+from geomprep.syslibs import import_open3d
+
+# open3d loads system libraries pip cannot install: a missing one is named in one line.
+o3d = import_open3d()
 
 # Bump when the grid's values change, so cached assets are rebuilt.
 VERSION = 3

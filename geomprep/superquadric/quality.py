@@ -15,6 +15,7 @@ from geomprep.superquadric.geometry import (
     sample_surface,
     sample_surface_dense,
 )
+from geomprep.syslibs import import_open3d
 
 
 class MeshOracle:
@@ -27,7 +28,7 @@ class MeshOracle:
     """
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, threads: int = 1) -> None:
-        import open3d as o3d  # heavy import, only where a mesh is queried
+        o3d = import_open3d()  # heavy import, only where a mesh is queried
 
         self._o3d = o3d
         self.threads = threads
