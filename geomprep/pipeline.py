@@ -10,13 +10,21 @@ Stages and what they read::
     all seven ─ pack ─> processed/<name>.h5
 
 A stage's cache key hashes its name, code version, parameters and the cache keys of its inputs
-(the mesh stage: the source file's SHA-256 and its mass). A stage whose output file carries the
-expected key is skipped; anything else is recomputed. Keys chain, so a changed source reruns
+(the mesh stage: the source file's SHA-256 and its mass). Keys chain, so a changed source reruns
 everything downstream and a changed SDF parameter reruns only ``sdf`` and ``pack``.
+
+A stage is skipped only if its record (``interim/<name>/<stage>.record.json``, see ``cache``)
+carries the expected key and every file it lists is still intact: the stage file, and for
+``mjcf`` the model directory, for ``pack`` ``processed/<name>.h5``. A deleted, truncated or
+rewritten output makes its stage ``invalid`` and it is rebuilt. The processed outputs of an
+object whose build fails are removed unless they are still current, and ``verify_processed``
+(used by the trainer) refuses processed files that do not match their record or whose source
+has changed since.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
@@ -38,6 +46,7 @@ import geomprep
 from geomprep import (
     bbox,
     builtin,
+    cache,
     decompose,
     hashing,
     importer,
@@ -48,6 +57,7 @@ from geomprep import (
     sdf,
     store,
     superquadric,
+    workers,
     ycb,
 )
 from geomprep.config import Config, params_dict
@@ -100,14 +110,30 @@ def _hash(payload: Any) -> str:
 
 
 def source_identity(cfg: Config, name: str) -> dict[str, Any]:
-    """What the mesh stage's output depends on: the source file's bytes and the mass rule."""
+    """What the mesh stage's output depends on: the source file's bytes and the mass rule.
+
+    The file is hashed again only if its size or mtime differ from what the mesh stage's record
+    saw (a rerun need not read every raw mesh)."""
     source = rawstore.read_source(cfg.raw_dir, name)
     mesh_path = cfg.raw_dir / name / source["mesh"]
+    seen = (cache.read_record(cfg.interim_dir, name, "mesh") or {}).get("source")
+    if not isinstance(seen, dict) or seen.get("path") != _rel(cfg, mesh_path):
+        seen = None
+    return _identity(
+        source, cache.current_sha256(mesh_path, seen) if mesh_path.is_file() else "missing"
+    )
+
+
+def _identity(source: dict[str, Any], mesh_sha256: str) -> dict[str, Any]:
     return {
-        "mesh_sha256": hashing.file_sha256(mesh_path) if mesh_path.is_file() else "missing",
+        "mesh_sha256": mesh_sha256,
         "mass_kg": source.get("mass_kg"),
         "density_kg_m3": source.get("density_kg_m3"),
     }
+
+
+def _rel(cfg: Config, path: Path) -> str:
+    return cache.relative(cfg.data_dir, path)
 
 
 def expected_keys(cfg: Config, name: str) -> dict[str, str]:
@@ -128,16 +154,82 @@ def expected_keys(cfg: Config, name: str) -> dict[str, str]:
     return keys
 
 
+def stage_outputs(cfg: Config, name: str, stage: str) -> list[Path]:
+    """The files a finished stage has written, all of which its record covers."""
+    outputs = [stage_path(cfg, name, stage)]
+    if stage == "mjcf":
+        model_dir = cfg.processed_dir / name
+        outputs += sorted(p for p in model_dir.rglob("*") if p.is_file())
+    return outputs
+
+
+def check_stage(
+    cfg: Config, name: str, stage: str, key: str, refresh: bool = False
+) -> tuple[str, str | None]:
+    """(status, why) of one stage's output, status one of
+
+    - ``missing``: no output file;
+    - ``stale``: made from other inputs or parameters, or not recorded (written by an older
+      geomprep, or a build killed between writing the output and its record);
+    - ``invalid``: recorded with this key, but a file changed since (``why`` names it);
+    - ``done``: recorded with this key and every recorded file is intact.
+
+    ``refresh``: save the new mtimes of files found intact by hashing (copied or restored
+    data), so that the next check is one ``stat`` per file again.
+    """
+    if not stage_path(cfg, name, stage).is_file():
+        return "missing", None
+    record = cache.read_record(cfg.interim_dir, name, stage)
+    if record is None or record.get("key") != key:
+        return "stale", None
+    seen = json.dumps(record, sort_keys=True)
+    problem = cache.check_record(cfg.data_dir, record)
+    if problem:
+        return "invalid", problem
+    source = record.get("source")
+    if stage == "mesh" and isinstance(source, dict):
+        # The key matched, so the source was hashed to the recorded bytes (or took the fast path).
+        with contextlib.suppress(OSError):
+            source["mtime_ns"] = (cfg.data_dir / source["path"]).stat().st_mtime_ns
+    if refresh and json.dumps(record, sort_keys=True) != seen:
+        cache.save_record(cfg.interim_dir, name, stage, record)
+    return "done", None
+
+
 def stage_status(cfg: Config, name: str) -> dict[str, str]:
-    """Per stage (and pack): 'done', 'stale' (output from other inputs/params) or 'missing'."""
+    """Per stage (and pack): 'done', 'stale', 'invalid' or 'missing' (see ``check_stage``)."""
     keys = expected_keys(cfg, name)
-    status = {}
-    for stage, key in keys.items():
-        attrs = store.read_root_attrs(stage_path(cfg, name, stage))
-        status[stage] = (
-            "missing" if attrs is None else "done" if attrs.get("cache_key") == key else "stale"
-        )
-    return status
+    return {stage: check_stage(cfg, name, stage, key)[0] for stage, key in keys.items()}
+
+
+def verify_processed(cfg: Config, name: str) -> str | None:
+    """None if ``processed/<name>.h5`` and the model directory are what geomprep last built for
+    the current source, else why not (one phrase). Parameters are not compared (a reader may not
+    know the config the build used); content and source are: a file changed since it was
+    written, a model directory from another build than the packed file, or a source that
+    changed since (re-imported, edited) all make the processed files out of date."""
+    h5 = stage_path(cfg, name, "pack")
+    if not h5.is_file():
+        return f"{h5} does not exist"
+    packed = cache.read_record(cfg.interim_dir, name, "pack")
+    if packed is None:
+        return f"{h5} has no build record (made by an older geomprep, or its build was cut short)"
+    problem = cache.check_record(cfg.data_dir, packed)
+    if problem:
+        return problem
+    model = cache.read_record(cfg.interim_dir, name, "mjcf")
+    if model is None or model.get("key") != packed.get("inputs", {}).get("mjcf"):
+        return f"the model in {cfg.processed_dir / name} is not the one {h5} was packed with"
+    problem = cache.check_record(cfg.data_dir, model, prefix=_rel(cfg, cfg.processed_dir) + "/")
+    if problem:
+        return problem
+    try:
+        current = source_identity(cfg, name)
+    except GeomprepError:
+        return f"the source of '{name}' is gone from {cfg.raw_dir}"
+    if current != packed.get("source_identity"):
+        return f"the source of '{name}' in {cfg.raw_dir} changed after {h5} was built"
+    return None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -294,13 +386,29 @@ def run_stage(cfg: Config, name: str, stage: str, key: str) -> float:
         "code_version": f"geomprep {geomprep.__version__}, {stage} v{VERSIONS[stage]}",
         "params": stage_params(cfg, stage),
     }
+    extra: dict[str, Any] = {}
+    if stage == "mesh":
+        source = rawstore.read_source(cfg.raw_dir, name)
+        mesh_path = cfg.raw_dir / name / source["mesh"]
+        if mesh_path.is_file():  # else run_mesh raises the user's error
+            # Taken before the stage reads the source: if the file changes meanwhile, its mtime
+            # no longer matches this entry and the next check hashes it again.
+            entry = cache.file_entry(mesh_path)
+            extra["source"] = {"path": _rel(cfg, mesh_path), **entry}
+            extra["source_identity"] = _identity(source, entry["sha256"])
     if stage == "pack":
         files = {s: stage_path(cfg, name, s) for s in STAGES}
+        records = {s: cache.read_record(cfg.interim_dir, name, s) or {} for s in STAGES}
+        extra["inputs"] = {s: records[s].get("key") for s in STAGES}
+        extra["source_identity"] = records["mesh"].get("source_identity")
         store.pack(files, stage_path(cfg, name, "pack"), {**root, "contract": "geomprep/1"})
     else:
         groups = RUNNERS[stage](cfg, name)
         compression = cfg.sdf.compression if stage == "sdf" else "gzip"
         store.write_stage(stage_path(cfg, name, stage), groups, root, compression=compression)
+    cache.write_record(
+        cfg.data_dir, cfg.interim_dir, name, stage, key, stage_outputs(cfg, name, stage), extra
+    )
     return time.perf_counter() - start
 
 
@@ -317,6 +425,10 @@ def resolve_objects(cfg: Config, spec: str | Sequence[str] | None) -> list[str]:
     if spec is None:
         spec = "all"
     items = [s.strip() for s in (spec.split(",") if isinstance(spec, str) else spec) if s.strip()]
+    if not items:
+        raise GeomprepError(
+            f"no object names in {spec!r}: give names or a set (all, builtin, ycb), comma-separated"
+        )
     imported = rawstore.complete_objects(cfg.raw_dir)
     names: list[str] = []
     for item in items:
@@ -372,6 +484,10 @@ class BuildReport:
     skipped: list[tuple[str, str]] = field(default_factory=list)
     failed: dict[str, str] = field(default_factory=dict)
     """object -> one-line error."""
+    invalid: dict[tuple[str, str], str] = field(default_factory=dict)
+    """(object, stage) -> which recorded output was damaged (the stage was rebuilt)."""
+    removed: dict[str, list[Path]] = field(default_factory=dict)
+    """failed object -> its out-of-date processed outputs, removed so nothing uses them."""
 
 
 @contextmanager
@@ -424,24 +540,56 @@ def build(
     report = BuildReport()
     needed = _with_dependencies(wanted)
     todo: dict[tuple[str, str], str] = {}  # (object, stage) -> key, for stages that must run
+    all_keys: dict[str, dict[str, str]] = {}
     for name in names:
         try:
-            keys = expected_keys(cfg, name)
+            keys = all_keys[name] = expected_keys(cfg, name)
         except GeomprepError as exc:
             report.failed[name] = str(exc)
             continue
         for stage in needed:
-            attrs = store.read_root_attrs(stage_path(cfg, name, stage))
-            up_to_date = attrs is not None and attrs.get("cache_key") == keys[stage]
-            if up_to_date and not (force and stage in wanted):
+            status, problem = check_stage(cfg, name, stage, keys[stage], refresh=True)
+            if problem is not None:
+                report.invalid[(name, stage)] = problem
+                log.warning("%s: %s: %s: rebuilding the stage", name, stage, problem)
+            if status == "done" and not (force and stage in wanted):
                 report.skipped.append((name, stage))
             else:
                 todo[(name, stage)] = keys[stage]
-    if todo:
-        _execute(
-            cfg, todo, report, jobs if jobs else (cfg.build.jobs or os.cpu_count() or 1), progress
-        )
+    try:
+        if todo:
+            jobs = jobs if jobs else (cfg.build.jobs or os.cpu_count() or 1)
+            _execute(cfg, todo, report, jobs, progress)
+    finally:  # also after Ctrl-C: what failed must not be served as current
+        for name in report.failed:
+            removed = invalidate_processed(cfg, name, all_keys.get(name))
+            if removed:
+                report.removed[name] = removed
+                log.info("%s: removed out-of-date %s", name, ", ".join(map(str, removed)))
     return report
+
+
+def invalidate_processed(cfg: Config, name: str, keys: dict[str, str] | None) -> list[Path]:
+    """Remove the processed outputs of ``name`` (``processed/<name>.h5``, the model directory)
+    that were not made with ``keys`` (None: unknown, remove both), with their records; return
+    what was removed. For an object whose build failed: its old outputs describe an old source
+    or old parameters, and the trainer must not take them for current ones."""
+    removed: list[Path] = []
+    outputs = {"pack": stage_path(cfg, name, "pack"), "mjcf": cfg.processed_dir / name}
+    for stage, path in outputs.items():
+        record = cache.read_record(cfg.interim_dir, name, stage)
+        if keys is not None and record is not None and record.get("key") == keys[stage]:
+            continue
+        # The record goes first: an output half removed by a crash is then unrecorded, and an
+        # unrecorded output is never trusted.
+        cache.remove_record(cfg.interim_dir, name, stage)
+        if path.is_dir():
+            shutil.rmtree(path)
+            removed.append(path)
+        elif path.exists():
+            path.unlink()
+            removed.append(path)
+    return removed
 
 
 def _with_dependencies(stages: Sequence[str]) -> list[str]:
@@ -493,7 +641,8 @@ def _execute(
             log.info("%s: %s done in %.1f s", name, stage, seconds)
         else:
             report.failed[name] = error
-            log.error("%s: %s", name, error)
+            # The message itself is the caller's to print (the CLI's report), once.
+            log.info("%s: %s failed", name, stage)
             if detail:
                 log.info("%s", detail)
             for other in [i for i in pending if i[0] == name]:  # its later stages cannot run
@@ -501,23 +650,34 @@ def _execute(
                 bar.update(1)
 
     if jobs <= 1:
-        while pending:
-            item = next(i for i in pending if ready(i))
-            del pending[item]
-            finish(item, *_guarded_run(cfg, item[0], item[1], todo[item]))
-        bar.close()
+        try:
+            while pending:
+                item = next(i for i in pending if ready(i))
+                del pending[item]
+                finish(item, *_guarded_run(cfg, item[0], item[1], todo[item]))
+        finally:
+            bar.close()
         return
 
     ctx = multiprocessing.get_context("spawn")
-    with (
-        _single_threaded_children(),
-        ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool,
-    ):
-        while pending or running:
-            for item in [i for i in pending if ready(i)]:
-                del pending[item]
-                running[pool.submit(_guarded_run, cfg, item[0], item[1], todo[item])] = item
-            done, _ = wait(running, return_when=FIRST_COMPLETED)
-            for future in done:
-                finish(running.pop(future), *future.result())
-    bar.close()
+    with _single_threaded_children():
+        # workers.init: the workers die with this process and leave Ctrl-C to it.
+        pool = ProcessPoolExecutor(
+            max_workers=jobs, mp_context=ctx, initializer=workers.init, initargs=(os.getpid(),)
+        )
+        try:
+            while pending or running:
+                for item in [i for i in pending if ready(i)]:
+                    del pending[item]
+                    with workers.sigint_blocked():  # a worker spawned here starts blocked
+                        future = pool.submit(_guarded_run, cfg, item[0], item[1], todo[item])
+                    running[future] = item
+                done, _ = wait(running, return_when=FIRST_COMPLETED)
+                for future in done:
+                    finish(running.pop(future), *future.result())
+        except BaseException:  # Ctrl-C (or a bug): stop the workers now, not after their stage
+            workers.stop(pool)
+            raise
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+            bar.close()

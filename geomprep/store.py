@@ -4,6 +4,7 @@ Every stage writes one file, ``interim/<name>/<stage>.h5``, holding its datasets
 attributes, its cache key, parameters and code version. A file is written to ``*.tmp`` and
 renamed into place only when complete, so a killed build never leaves a file that looks done.
 ``pack`` then copies every stage's groups into ``processed/<name>.h5``, the file the trainer reads.
+Whether a file is still what was written is ``cache``'s business (the build records).
 """
 
 from __future__ import annotations
@@ -103,15 +104,6 @@ def _chunks(array: np.ndarray) -> tuple[int, ...] | bool:
     if array.ndim == 3:
         return tuple(min(32, n) for n in array.shape)
     return True
-
-
-def read_root_attrs(path: Path) -> dict[str, Any] | None:
-    """Root attributes of a stage file, or None if it does not exist or cannot be read."""
-    try:
-        with h5py.File(path, "r") as f:
-            return {k: _decode(v) for k, v in f.attrs.items()}
-    except (OSError, KeyError):
-        return None
 
 
 def _decode(value: Any) -> Any:

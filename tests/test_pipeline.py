@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import shutil
 import signal
 import subprocess
 import sys
@@ -19,20 +18,14 @@ from click.testing import CliRunner
 from geomprep import cli, importer, mesh, pipeline, rawstore, store
 from geomprep.config import Config, load_config
 from geomprep.errors import GeomprepError
+from tests.built_data import copy_built
 from tests.conftest import require_ycb
 
 
 @pytest.fixture()
 def box_data(tmp_path: Path, builtin_data: Config) -> Config:
     """A private copy of the built-in data with only builtin_box and builtin_dice (fast to redo)."""
-    cfg = Config(data_dir=tmp_path / "data")
-    for name in ("builtin_box", "builtin_dice"):
-        for sub in ("raw", "interim", "processed"):
-            src = builtin_data.data_dir / sub / name
-            if src.exists():
-                shutil.copytree(src, cfg.data_dir / sub / name)
-        shutil.copy(builtin_data.processed_dir / f"{name}.h5", cfg.processed_dir / f"{name}.h5")
-    return cfg
+    return copy_built(builtin_data, tmp_path / "data")
 
 
 def _mtimes(cfg: Config, name: str) -> dict[str, float]:
@@ -83,7 +76,9 @@ def test_failed_stage_leaves_no_complete_looking_file(box_data, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         pipeline.build(box_data, ["builtin_box"], stages=["sdf"], jobs=1, progress=False)
     assert not path.exists()
-    assert [p.name for p in path.parent.iterdir() if "sdf" in p.name] == []
+    # No leftovers; the record of the deleted output stays, trusted for nothing without it.
+    assert [p.name for p in path.parent.iterdir() if "sdf" in p.name] == ["sdf.record.json"]
+    assert pipeline.stage_status(box_data, "builtin_box")["sdf"] == "missing"
 
 
 def test_killed_build_resumes(box_data):

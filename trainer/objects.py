@@ -13,9 +13,9 @@ import h5py
 import numpy as np
 import torch
 
-from geomprep.config import load_config
+from geomprep.config import Config, load_config
 from geomprep.errors import GeomprepError
-from geomprep.pipeline import resolve_objects
+from geomprep.pipeline import resolve_objects, verify_processed
 from geomprep.sdf_lookup import SDFLookup
 from trainer.errors import TrainerError
 
@@ -63,7 +63,11 @@ def load_objects(
     device: str | torch.device = "cpu",
     sdf_dtype: torch.dtype = torch.float32,
 ) -> ObjectSet:
-    """Read ``data_dir/processed/<name>.h5`` for every name (see the README's data contract)."""
+    """Read ``data_dir/processed/<name>.h5`` for every name (see the README's data contract).
+
+    Only files geomprep has verified: every object's processed files must match geomprep's
+    build record and come from its current source (``geomprep.pipeline.verify_processed``), so
+    a damaged file, a failed rebuild or a re-imported source is refused, not trained on."""
     processed = Path(data_dir) / "processed"
     h5_paths = [processed / f"{name}.h5" for name in names]
     missing = [n for n, p in zip(names, h5_paths, strict=True) if not p.is_file()]
@@ -72,6 +76,14 @@ def load_objects(
             f"no geomprep output for {', '.join(missing[:5])}"
             f"{' ...' if len(missing) > 5 else ''} in {processed}: run "
             f"`geomprep build-all --objects {','.join(missing)}`"
+        )
+    geomprep_cfg = Config(data_dir=Path(data_dir))  # only its directories are used
+    problems = {n: why for n in names if (why := verify_processed(geomprep_cfg, n)) is not None}
+    if problems:
+        first = next(iter(problems.values()))
+        more = f" (and {len(problems) - 1} more objects)" if len(problems) > 1 else ""
+        raise TrainerError(
+            f"{first}{more}: rebuild with `geomprep build-all --objects {','.join(problems)}`"
         )
     centers, rotations, extents, sq, points, keys, xmls = [], [], [], [], [], [], []
     for name, path in zip(names, h5_paths, strict=True):
