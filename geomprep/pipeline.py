@@ -340,7 +340,7 @@ def run_sdf(cfg: Config, name: str) -> Groups:
 
 def run_bbox(cfg: Config, name: str) -> Groups:
     vertices, faces = _load_mesh(cfg, name)
-    center, rotation, extents = bbox.oriented_bbox(vertices, faces)
+    center, rotation, extents = bbox.oriented_bbox(vertices, faces, cfg.bbox.max_faces)
     local = (vertices - center) @ rotation
     contained = np.all(np.abs(local) <= extents / 2 + 1e-6, axis=1)
     attrs = {"volume_m3": float(np.prod(extents)), "contained_fraction": float(contained.mean())}

@@ -7,12 +7,17 @@ import os
 # MuJoCo chooses its OpenGL backend at first import; the rendering tests need EGL (no display).
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+import fcntl  # noqa: E402
+import hashlib  # noqa: E402
+import shutil  # noqa: E402
+from collections.abc import Sequence  # noqa: E402
+from importlib import metadata  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import pytest  # noqa: E402
 import trimesh  # noqa: E402
 
-from geomprep import importer, mesh, pipeline  # noqa: E402
+from geomprep import builtin, importer, mesh, pipeline  # noqa: E402
 from geomprep.config import Config  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -44,25 +49,98 @@ def ycb_mesh(name: str) -> trimesh.Trimesh:
     return trimesh.Trimesh(norm.vertices, norm.faces, process=False)
 
 
+# ---------------------------------------------------------------------------------------------
+# Built data directories, cached across test sessions by content
+
+CACHE_ENV = "GEOMGRASP_TEST_CACHE"
+"""Where built fixture data is kept between sessions (default ~/.cache/geomgrasp/test-data);
+``0`` or ``off`` builds everything afresh in every session."""
+_KEY_PACKAGES = ("numpy", "scipy", "trimesh", "coacd", "open3d", "mujoco", "h5py", "manifold3d")
+
+
+def _cache_root() -> Path | None:
+    value = os.environ.get(CACHE_ENV, "")
+    if value.lower() in ("0", "off", "no", "false"):
+        return None
+    return Path(value) if value else Path.home() / ".cache" / "geomgrasp" / "test-data"
+
+
+def _content_key(names: Sequence[str], source_dir: Path | None) -> str:
+    """Hash of everything a build's output depends on: geomprep's code, the versions of the
+    libraries it calls, the object names and (for imported objects) their source files. Any
+    change to one of these builds afresh, so a cached directory is what a build would make."""
+    digest = hashlib.sha256()
+    code = sorted(p for p in (ROOT / "geomprep").rglob("*") if p.suffix in (".py", ".c"))
+    for path in code:
+        digest.update(str(path.relative_to(ROOT)).encode() + b"\0" + path.read_bytes())
+    for package in _KEY_PACKAGES:
+        try:
+            digest.update(f"{package}={metadata.version(package)}".encode())
+        except metadata.PackageNotFoundError:
+            digest.update(f"{package}=none".encode())
+    digest.update(",".join(names).encode())
+    if source_dir is not None:
+        files = [source_dir / "masses.csv"] if (source_dir / "masses.csv").is_file() else []
+        for name in names:
+            files += sorted(p for p in (source_dir / name).rglob("*") if p.is_file())
+        for path in files:
+            digest.update(str(path.relative_to(source_dir)).encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()[:20]
+
+
+def _build(data_dir: Path, names: Sequence[str], source_dir: Path | None) -> None:
+    cfg = Config(data_dir=data_dir)
+    if source_dir is not None:
+        importer.import_directory(source_dir, cfg.raw_dir, list(names))
+    resolved = pipeline.resolve_objects(cfg, list(names))
+    report = pipeline.build(cfg, resolved, jobs=2, progress=False)
+    assert not report.failed, report.failed
+
+
+def built_data(
+    tmp_path_factory: pytest.TempPathFactory,
+    label: str,
+    names: Sequence[str],
+    source_dir: Path | None = None,
+) -> Config:
+    """A fresh data directory (a copy the test may change) with ``names`` built: imported from
+    ``source_dir`` first unless they are built-in. The build is cached by content (see
+    ``_content_key``) under ``$GEOMGRASP_TEST_CACHE``: a later session with the same code,
+    libraries and sources copies it instead of building (a build of the YCB test objects takes
+    about a minute on 2 cores, a copy a second)."""
+    dest = tmp_path_factory.mktemp(label) / "data"
+    root = _cache_root()
+    if root is None:
+        _build(dest, names, source_dir)
+        return Config(data_dir=dest)
+    root.mkdir(parents=True, exist_ok=True)
+    entry = root / f"{label}-{_content_key(names, source_dir)}"
+    with open(root / f"{label}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # two sessions at once: one builds, the other waits
+        if not (entry / "complete").is_file():
+            staging = root / f".{entry.name}.tmp-{os.getpid()}"
+            shutil.rmtree(staging, ignore_errors=True)
+            _build(staging / "data", names, source_dir)
+            (staging / "complete").write_text("built\n")
+            for old in root.glob(f"{label}-*"):  # an older build of the same fixture
+                shutil.rmtree(old, ignore_errors=True)
+            os.replace(staging, entry)
+    shutil.copytree(entry / "data", dest)  # copy2 keeps modification times
+    return Config(data_dir=dest)
+
+
 @pytest.fixture(scope="session")
 def builtin_data(tmp_path_factory: pytest.TempPathFactory) -> Config:
     """A data directory with the whole built-in set built (all stages, packed)."""
-    cfg = Config(data_dir=tmp_path_factory.mktemp("builtin") / "data")
-    names = pipeline.resolve_objects(cfg, "builtin")
-    report = pipeline.build(cfg, names, jobs=2, progress=False)
-    assert not report.failed, report.failed
-    return cfg
+    return built_data(tmp_path_factory, "builtin", builtin.NAMES)
 
 
-def build_ycb(tmp_path_factory: pytest.TempPathFactory, label: str, names: tuple[str, ...]) -> Config:  # noqa: E501
-    """A fresh data directory with ``names`` imported from YCB_DIR and built (skips the test
-    if the YCB models are absent)."""
-    ycb = require_ycb()
-    cfg = Config(data_dir=tmp_path_factory.mktemp(label) / "data")
-    importer.import_directory(ycb, cfg.raw_dir, names)
-    report = pipeline.build(cfg, list(names), jobs=2, progress=False)
-    assert not report.failed, report.failed
-    return cfg
+def build_ycb(
+    tmp_path_factory: pytest.TempPathFactory, label: str, names: tuple[str, ...]
+) -> Config:
+    """A data directory with ``names`` imported from YCB_DIR and built (skips the test if the
+    YCB models are absent)."""
+    return built_data(tmp_path_factory, label, names, require_ycb())
 
 
 @pytest.fixture(scope="session")
@@ -76,5 +154,5 @@ def built(request: pytest.FixtureRequest) -> tuple[Config, list[str]]:
     """Both built data sets in turn, with their object names."""
     if request.param == "builtin":
         cfg = request.getfixturevalue("builtin_data")
-        return cfg, list(pipeline.builtin.NAMES)
+        return cfg, list(builtin.NAMES)
     return request.getfixturevalue("ycb_data"), list(YCB_TEST_OBJECTS)
