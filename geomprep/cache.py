@@ -16,6 +16,11 @@ is hashed again (about 1 s per GB) and trusted only if the SHA-256 matches. Anyt
 rewrites a file changes its mtime, so the fast path cannot miss a damaged file short of a
 write within the filesystem's timestamp granularity right after the record was made.
 
+A record never changes after it is written (DVC tracks it as an output of its stage). When a
+file is found intact by hashing (a copied data directory, a ``dvc checkout``), its new mtime goes
+to a sidecar, ``<stage>.mtimes.json`` (path -> [mtime_ns, sha256]), which ``read_record`` lays
+over the record's mtimes where the hashes agree; the next check is one ``stat`` again.
+
 This module uses only the standard library: the trainer and ``geomprep show`` read records
 without importing the stages.
 """
@@ -32,6 +37,9 @@ from typing import Any
 from geomprep.hashing import file_sha256
 
 RECORD_SUFFIX = ".record.json"
+MTIMES_SUFFIX = ".mtimes.json"
+SOURCE = "source"
+"""The sidecar key of the mesh record's source entry."""
 
 
 def file_entry(path: Path) -> dict[str, Any]:
@@ -52,7 +60,7 @@ def current_sha256(path: Path, entry: Mapping[str, Any] | None) -> str:
 def check_file(path: Path, entry: dict[str, Any]) -> str | None:
     """None if ``path`` holds the bytes ``entry`` records, else why not (a phrase). A file with
     a new mtime but the recorded bytes (copied, restored, touched) gets the new mtime in
-    ``entry``: saved (``save_record``), later checks take the fast path again."""
+    ``entry``: saved (``save_mtimes``), later checks take the fast path again."""
     try:
         stat = os.stat(path)
     except FileNotFoundError:
@@ -86,7 +94,39 @@ def read_record(interim_dir: Path, name: str, stage: str) -> dict[str, Any] | No
         return None
     if not isinstance(record, dict) or not isinstance(record.get("files"), dict):
         return None
+    for rel, entry in _entries(record).items():
+        seen = _read_mtimes(interim_dir, name, stage).get(rel)
+        # Only an mtime seen for the recorded bytes: never one left by an older build.
+        if isinstance(seen, list) and len(seen) == 2 and seen[1] == entry.get("sha256"):
+            entry["mtime_ns"] = seen[0]
     return record
+
+
+def _entries(record: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The record's file entries by path, with the mesh stage's source under ``SOURCE``."""
+    entries = {rel: e for rel, e in record["files"].items() if isinstance(e, dict)}
+    if isinstance(record.get("source"), dict):
+        entries[SOURCE] = record["source"]
+    return entries
+
+
+def mtimes_path(interim_dir: Path, name: str, stage: str) -> Path:
+    return Path(interim_dir) / name / f"{stage}{MTIMES_SUFFIX}"
+
+
+def _read_mtimes(interim_dir: Path, name: str, stage: str) -> dict[str, Any]:
+    try:
+        seen = json.loads(mtimes_path(interim_dir, name, stage).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return seen if isinstance(seen, dict) else {}
+
+
+def save_mtimes(interim_dir: Path, name: str, stage: str, record: dict[str, Any]) -> None:
+    """Remember the mtimes ``record``'s entries now hold (set by ``check_file`` after a
+    rehash) in the stage's sidecar, leaving the record itself as written."""
+    seen = {rel: [e.get("mtime_ns"), e.get("sha256")] for rel, e in _entries(record).items()}
+    _write_json_atomic(mtimes_path(interim_dir, name, stage), seen)
 
 
 def write_record(
@@ -112,11 +152,16 @@ def write_record(
 
 def save_record(interim_dir: Path, name: str, stage: str, record: Mapping[str, Any]) -> None:
     """Write a record atomically (a reader sees the old one or the new one, never half)."""
-    path = record_path(interim_dir, name, stage)
+    with contextlib.suppress(FileNotFoundError):
+        mtimes_path(interim_dir, name, stage).unlink()  # it described the previous outputs
+    _write_json_atomic(record_path(interim_dir, name, stage), record)
+
+
+def _write_json_atomic(path: Path, value: Any) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
-        tmp.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+        tmp.write_text(json.dumps(value, indent=1, sort_keys=True) + "\n", encoding="utf-8")
         os.replace(tmp, path)
     finally:
         with contextlib.suppress(FileNotFoundError):
@@ -124,8 +169,9 @@ def save_record(interim_dir: Path, name: str, stage: str, record: Mapping[str, A
 
 
 def remove_record(interim_dir: Path, name: str, stage: str) -> None:
-    with contextlib.suppress(FileNotFoundError):
-        record_path(interim_dir, name, stage).unlink()
+    for path in (record_path(interim_dir, name, stage), mtimes_path(interim_dir, name, stage)):
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
 
 
 def relative(data_dir: Path, path: Path) -> str:

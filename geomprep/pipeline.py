@@ -175,7 +175,7 @@ def check_stage(
     - ``done``: recorded with this key and every recorded file is intact.
 
     ``refresh``: save the new mtimes of files found intact by hashing (copied or restored
-    data), so that the next check is one ``stat`` per file again.
+    data) in the stage's mtimes sidecar, so that the next check is one ``stat`` per file again.
     """
     if not stage_path(cfg, name, stage).is_file():
         return "missing", None
@@ -192,7 +192,7 @@ def check_stage(
         with contextlib.suppress(OSError):
             source["mtime_ns"] = (cfg.data_dir / source["path"]).stat().st_mtime_ns
     if refresh and json.dumps(record, sort_keys=True) != seen:
-        cache.save_record(cfg.interim_dir, name, stage, record)
+        cache.save_mtimes(cfg.interim_dir, name, stage, record)
     return "done", None
 
 

@@ -3,6 +3,7 @@ source never leaves its old processed files looking current, and the trainer ref
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -175,3 +176,34 @@ def test_rerun_checks_by_stat_and_rehashes_only_changed_mtimes(box_data, monkeyp
     hashed.clear()
     report = pipeline.build(box_data, names, jobs=1, progress=False)
     assert report.seconds == {} and hashed == []
+
+
+def test_touched_files_are_rehashed_once_and_records_never_change(box_data, monkeypatch):
+    # A copied data directory or a `dvc checkout` gives intact files new mtimes. They are hashed
+    # once and then trusted on a stat again, while the records (DVC outputs) keep their bytes.
+    records = sorted(box_data.interim_dir.glob("builtin_box/*.record.json"))
+    before = {p: p.read_bytes() for p in records}
+    for path in [*box_data.interim_dir.glob("builtin_box/*.h5"), box_data.processed_dir / "builtin_box.h5"]:  # noqa: E501
+        os.utime(path, ns=(path.stat().st_atime_ns, path.stat().st_mtime_ns + 10**9))
+    hashed: list[Path] = []
+    real_sha256 = cache.file_sha256
+    monkeypatch.setattr(cache, "file_sha256", lambda p: hashed.append(Path(p)) or real_sha256(p))
+    assert set(pipeline.stage_status(box_data, "builtin_box").values()) == {"done"}
+    report = pipeline.build(box_data, ["builtin_box"], jobs=1, progress=False)
+    assert report.seconds == {} and not report.failed
+    assert len(hashed) >= 8  # every touched stage file, at least once
+    hashed.clear()
+    report = pipeline.build(box_data, ["builtin_box"], jobs=1, progress=False)
+    assert report.seconds == {} and hashed == []
+    assert {p: p.read_bytes() for p in records} == before
+    assert (box_data.interim_dir / "builtin_box" / "sdf.mtimes.json").is_file()
+
+
+def test_mtimes_of_an_older_build_are_not_trusted(box_data):
+    # A sidecar whose hash is not the record's (left by an earlier build) cannot vouch for a file.
+    sdf = box_data.interim_dir / "builtin_box" / "sdf.h5"
+    rel = cache.relative(box_data.data_dir, sdf)
+    _scribble(sdf, sdf.stat().st_size // 2, 64)
+    stale = {rel: [sdf.stat().st_mtime_ns, "0" * 64]}
+    cache.mtimes_path(box_data.interim_dir, "builtin_box", "sdf").write_text(json.dumps(stale))
+    assert pipeline.stage_status(box_data, "builtin_box")["sdf"] == "invalid"
