@@ -184,7 +184,7 @@ def _wait_gone(pids: list[int], seconds: float = 10.0) -> list[int]:
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_killed_build_leaves_no_workers(box_data):
     proc, workers = _start_parallel_build(box_data, capture=False)
-    time.sleep(1.0)  # into their start-up or first stage
+    time.sleep(0.5)  # into their start-up (importing the stages takes seconds)
     descendants = _descendants(proc.pid)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
