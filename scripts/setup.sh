@@ -57,7 +57,8 @@ if [ ${#missing[@]} -gt 0 ]; then
   say "installing system packages: ${missing[*]}"
   export DEBIAN_FRONTEND=noninteractive
   "${sudo[@]}" apt-get update -qq
-  "${sudo[@]}" apt-get install -y -qq "${missing[@]}" >/dev/null
+  "${sudo[@]}" apt-get install -y -qq "${missing[@]}" >/dev/null ||
+    fail "apt-get could not install ${missing[*]} (its message is above; 'sudo apt-get --fix-broken install' repairs a broken package state), then rerun this script"
 fi
 
 # --- Python environment ---------------------------------------------------------------------
