@@ -126,7 +126,7 @@ def save_mtimes(interim_dir: Path, name: str, stage: str, record: dict[str, Any]
     """Remember the mtimes ``record``'s entries now hold (set by ``check_file`` after a
     rehash) in the stage's sidecar, leaving the record itself as written."""
     seen = {rel: [e.get("mtime_ns"), e.get("sha256")] for rel, e in _entries(record).items()}
-    _write_json_atomic(mtimes_path(interim_dir, name, stage), seen)
+    write_json_atomic(mtimes_path(interim_dir, name, stage), seen)
 
 
 def write_record(
@@ -154,14 +154,19 @@ def save_record(interim_dir: Path, name: str, stage: str, record: Mapping[str, A
     """Write a record atomically (a reader sees the old one or the new one, never half)."""
     with contextlib.suppress(FileNotFoundError):
         mtimes_path(interim_dir, name, stage).unlink()  # it described the previous outputs
-    _write_json_atomic(record_path(interim_dir, name, stage), record)
+    write_json_atomic(record_path(interim_dir, name, stage), record)
 
 
-def _write_json_atomic(path: Path, value: Any) -> None:
+def write_json_atomic(path: Path, value: Any) -> None:
+    """Write ``value`` as JSON to ``path`` via a temporary sibling and ``os.replace``: a reader
+    (or a killed writer) sees the old file or the new one, never half of one."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
-        tmp.write_text(json.dumps(value, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(json.dumps(value, indent=1, sort_keys=True) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
         os.replace(tmp, path)
     finally:
         with contextlib.suppress(FileNotFoundError):

@@ -2,8 +2,8 @@
 
 The raw store is ``raw_dir/<name>/``; an object is complete only when ``raw_dir/<name>/source.json``
 exists. Every object is staged in ``raw_dir/.<name>.tmp-<pid>/``, ``source.json`` is written inside
-that staging directory (via ``source.json.tmp`` + ``os.replace``) and the directory is then renamed
-into place, so a crashed or failed import never looks complete: the next run removes the leftovers
+that staging directory (``cache.write_json_atomic``) and the directory is then renamed into
+place, so a crashed or failed import never looks complete: the next run removes the leftovers
 and redoes the object.
 
 ``source.json`` holds ``name``, ``mesh`` (path relative to the object directory), ``mass_kg`` or
@@ -20,6 +20,7 @@ import shutil
 from collections.abc import Callable
 from pathlib import Path
 
+from geomprep.cache import write_json_atomic
 from geomprep.errors import GeomprepError
 from geomprep.hashing import file_sha256
 
@@ -104,17 +105,6 @@ def read_source(raw_dir: Path, name: str) -> dict:
 # --------------------------------------------------------------------------------------------
 
 
-def _write_json_atomic(path: Path, record: dict) -> None:
-    """Write ``record`` to ``path`` via ``path.tmp`` + ``os.replace`` (never half-written)."""
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", encoding="utf-8") as f:
-        json.dump(record, f, indent=2)
-        f.write("\n")
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
 def _remove(path: Path) -> None:
     """Remove a file, link or directory tree if it exists."""
     if path.is_dir() and not path.is_symlink():
@@ -177,7 +167,7 @@ def install_object(
             "mesh_sha256": file_sha256(stage / mesh_rel),
         }
         # source.json goes in before the rename, so the object appears complete in one step.
-        _write_json_atomic(stage / SOURCE_FILE, record)
+        write_json_atomic(stage / SOURCE_FILE, record)
         if final.exists() or final.is_symlink():
             # Move the old (incomplete, or forced-over) copy aside first: renaming it is atomic,
             # deleting a tree is not, and a half-deleted tree could still hold source.json.
