@@ -314,12 +314,23 @@ class DecomposeParams(Checked):
 
 @dataclass(frozen=True)
 class MJCFParams(Checked):
-    """Stage ``mjcf``: the per-object MuJoCo model."""
+    """Stage ``mjcf``: the per-object MuJoCo model.
 
-    friction: tuple[float, float, float] = bounded((1.0, 0.005, 0.0001), ge=0)
-    """Sliding, torsional, rolling friction of the collision hulls."""
+    ``friction``, ``condim``, ``solref`` and ``solimp`` are the object's contact parameters
+    everywhere: ``mjcf.py`` writes them on every collision hull geom of the MJCF, geomprep's
+    settle check simulates that MJCF as written, and the trainer reads them from the MJCF and
+    does not override them. Changing one here changes the object the trainer trains with.
+    """
+
+    friction: tuple[float, float, float] = bounded((1.0, 0.01, 0.0001), ge=0)
+    """Sliding, torsional, rolling friction of the collision hulls (MuJoCo ``geom/@friction``);
+    the object's friction in the settle check and in the trainer."""
     condim: int = bounded(4, choices=(1, 3, 4, 6))
+    """Contact dimensionality of the collision hulls (4: sliding plus torsional friction)."""
     solref: tuple[float, float] = (0.01, 1.0)
+    """Contact solver reference (time constant s, damping ratio) of the collision hulls."""
+    solimp: tuple[float, float, float, float, float] = (0.9, 0.95, 0.001, 0.5, 2.0)
+    """Contact solver impedance (dmin, dmax, width m, midpoint, power) of the collision hulls."""
     settle_seconds: float = bounded(2.0, gt=0)
     """Simulated time for the settle check that validates the model."""
 

@@ -9,6 +9,11 @@ Layout of ``processed/<name>/``::
 
 Mass and inertia are written explicitly (from the closed mesh, see ``mesh.mass_properties``),
 so they do not depend on how MuJoCo would integrate the hulls.
+
+Every collision hull carries the object's contact parameters, ``MJCFParams``' friction,
+condim, solref and solimp (all written out, none left to MuJoCo's defaults): this MJCF is
+their single source. The settle check simulates the model as written, and the trainer reads
+them from it and does not override them.
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ from geomprep.config import MJCFParams
 from geomprep.decompose import Hull
 from geomprep.errors import GeomprepError
 
-VERSION = 2
+VERSION = 3
 
 
 def _fmt(values: np.ndarray | tuple[float, ...] | list[float]) -> str:
@@ -81,7 +86,8 @@ def model_xml(
             "  <default>",
             f'    <default class="{name}_collision">',
             f'      <geom group="3" density="0" friction="{_fmt(params.friction)}" '
-            f'condim="{params.condim}" solref="{_fmt(params.solref)}" rgba="0.4 0.6 0.9 0.5"/>',
+            f'condim="{params.condim}" solref="{_fmt(params.solref)}" '
+            f'solimp="{_fmt(params.solimp)}" rgba="0.4 0.6 0.9 0.5"/>',
             "    </default>",
             "  </default>",
             "  <asset>",

@@ -10,6 +10,7 @@ import pytest
 import trimesh
 
 from geomprep import decompose, mesh, mjcf, pipeline, store
+from geomprep.config import MJCFParams
 from geomprep.masses import read_masses
 from tests.conftest import YCB_DIR
 
@@ -104,6 +105,76 @@ def test_mjcf_loads_and_settles_on_a_plane(built):
         assert result.final_speed_m_s < 0.01, (name, result)
         assert -0.002 < result.lowest_point_m < 0.003, (name, result)  # on the plane, not in it
         assert result.max_height_m < result.start_height_m + 1e-3, (name, result)  # no jump
+
+
+def _hull_contact(model: mujoco.MjModel) -> list[tuple[tuple[float, ...], ...]]:
+    """(friction, condim, solref, solimp) of each collision hull geom (group 3) of ``model``."""
+    return [
+        (
+            tuple(model.geom_friction[g]),
+            (int(model.geom_condim[g]),),
+            tuple(model.geom_solref[g]),
+            tuple(model.geom_solimp[g]),
+        )
+        for g in range(model.ngeom)
+        if model.geom_group[g] == 3
+    ]
+
+
+def _expected_contact(params: MJCFParams) -> tuple[tuple[float, ...], ...]:
+    return (params.friction, (params.condim,), params.solref, params.solimp)
+
+
+def test_mjcf_params_are_the_contact_parameters_the_trainer_trains_with():
+    """The MJCF is the single source of an object's contact parameters: its defaults are the
+    values every learning result used (the trainer reads them from the MJCF)."""
+    params = MJCFParams()
+    assert params.friction == (1.0, 0.01, 0.0001)
+    assert params.condim == 4
+    assert params.solref == (0.01, 1.0)
+    assert params.solimp == (0.9, 0.95, 0.001, 0.5, 2.0)
+
+
+def test_mjcf_hull_geoms_carry_exactly_the_contact_parameters(tmp_path):
+    """Every collision hull of the written MJCF has MJCFParams' friction, condim, solref and
+    solimp: non-default values show that each one is written, none left to MuJoCo's default."""
+    box = trimesh.creation.box((0.04, 0.03, 0.02))
+    hulls = [(np.asarray(box.vertices), np.asarray(box.faces))] * 2
+    params = MJCFParams(
+        friction=(0.7, 0.02, 0.0003),
+        condim=6,
+        solref=(0.02, 0.8),
+        solimp=(0.8, 0.9, 0.002, 0.4, 3.0),
+    )
+    xml = mjcf.write_model_dir(
+        tmp_path,
+        "box",
+        0.1,
+        np.diag([1e-5, 2e-5, 3e-5]),
+        hulls,
+        (np.asarray(box.vertices), np.asarray(box.faces), None),
+        None,
+        params,
+    )
+    contact = _hull_contact(mujoco.MjModel.from_xml_path(str(xml)))
+    assert len(contact) == 2
+    for hull in contact:
+        for got, want in zip(hull, _expected_contact(params), strict=True):
+            np.testing.assert_allclose(got, want, rtol=1e-9, atol=0)
+
+
+def test_built_mjcf_hull_geoms_carry_the_built_contact_parameters(built):
+    """The built models (what the trainer loads) carry the config's contact parameters, and
+    their XML states solimp itself rather than relying on MuJoCo's default."""
+    cfg, names = built
+    for name in names:
+        xml = cfg.processed_dir / name / f"{name}.xml"
+        assert f'solimp="{mjcf._fmt(cfg.mjcf.solimp)}"' in xml.read_text(), name
+        contact = _hull_contact(mujoco.MjModel.from_xml_path(str(xml)))
+        assert contact, name
+        for hull in contact:
+            for got, want in zip(hull, _expected_contact(cfg.mjcf), strict=True):
+                np.testing.assert_allclose(got, want, rtol=1e-9, atol=0, err_msg=name)
 
 
 def test_bbox_contains_vertices_and_is_tight(built):
