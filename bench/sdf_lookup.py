@@ -35,8 +35,9 @@ from scipy.interpolate import RegularGridInterpolator
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from geomprep.rotations import quat_to_matrix, random_quats  # noqa: E402
 from geomprep.sdf import voxel_centers  # noqa: E402
-from geomprep.sdf_lookup import SDFLookup, empty_grids, quat_to_matrix  # noqa: E402
+from geomprep.sdf_lookup import SDFLookup, empty_grids  # noqa: E402
 
 PAPER_MS = 0.31
 TARGET_CPU_MS = 3.0
@@ -98,8 +99,7 @@ def make_queries(
     else:
         raise ValueError(f"spread {spread!r}: one of {SPREADS}")
     pos = (torch.rand(n_env, 3, generator=gen) - 0.5) * 2.0
-    quat = torch.randn(n_env, 4, generator=gen)
-    quat = quat / quat.norm(dim=-1, keepdim=True)
+    quat = random_quats(n_env, generator=gen)
     world = torch.einsum("eij,ekj->eki", quat_to_matrix(quat), local) + pos[:, None, :]
     return world, pos, quat, ids, local
 

@@ -51,6 +51,7 @@ import torch
 
 from geomprep import sdf_lookup_cpu
 from geomprep.errors import GeomprepError
+from geomprep.rotations import quat_to_matrix
 
 # Relative rounding error of float16 storage (half an ulp of an 11-bit significand).
 FLOAT16_RELATIVE_ERROR = 2.0**-11
@@ -92,29 +93,6 @@ def to_bricks(grid: torch.Tensor) -> torch.Tensor:
     out = grid.new_zeros(b, b, b, BRICK_VALUES)
     out[..., : n**3] = cubes.reshape(b, b, b, n**3)
     return out
-
-
-def quat_to_matrix(quat: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices (..., 3, 3) from quaternions (..., 4) in (w, x, y, z) order.
-
-    The quaternion is normalised first; R maps object-frame vectors to world vectors.
-    """
-    q = quat / quat.norm(dim=-1, keepdim=True)
-    w, x, y, z = q.unbind(-1)
-    return torch.stack(
-        [
-            1 - 2 * (y * y + z * z),
-            2 * (x * y - w * z),
-            2 * (x * z + w * y),
-            2 * (x * y + w * z),
-            1 - 2 * (x * x + z * z),
-            2 * (y * z - w * x),
-            2 * (x * z - w * y),
-            2 * (y * z + w * x),
-            1 - 2 * (x * x + y * y),
-        ],
-        dim=-1,
-    ).reshape(*q.shape[:-1], 3, 3)
 
 
 _HUGE_PAGE = 2 << 20

@@ -18,13 +18,13 @@ from scipy.spatial.transform import Rotation
 
 from geomprep import sdf_lookup_cpu
 from geomprep.errors import GeomprepError
+from geomprep.rotations import quat_to_matrix
 from geomprep.sdf import SDFGrid, compute_sdf, voxel_centers
 from geomprep.sdf_lookup import (
     FLOAT16_RELATIVE_ERROR,
     SDFLookup,
     bricks_per_axis,
     naive_query,
-    quat_to_matrix,
 )
 
 YCB_DIR = Path(
@@ -86,15 +86,6 @@ def box() -> SDFGrid:
 def sphere() -> SDFGrid:
     mesh = trimesh.creation.icosphere(subdivisions=5, radius=0.06)
     return compute_sdf(mesh.vertices, mesh.faces, resolution=60, extent=0.15)
-
-
-def test_quaternion_convention() -> None:
-    # 90 degrees about z, (w, x, y, z): the object's x axis points along world y.
-    half = np.sqrt(0.5)
-    rot = quat_to_matrix(torch.tensor([half, 0.0, 0.0, half]))
-    np.testing.assert_allclose(rot.numpy() @ [1, 0, 0], [0, 1, 0], atol=1e-6)
-    _, _, quat = _pose(3)
-    np.testing.assert_allclose(quat_to_matrix(torch.tensor(quat)).numpy(), _pose(3)[0], atol=1e-6)
 
 
 def test_cpu_kernel_builds() -> None:

@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 import torch
 
-from trainer.rotations import matrix_to_axis_angle, quat_to_matrix
+from geomprep.rotations import matrix_to_axis_angle, quat_to_matrix
 
 
 @dataclass

@@ -14,8 +14,14 @@ from __future__ import annotations
 
 import torch
 
+from geomprep.rotations import (
+    euler_xyz_to_matrix,
+    matrix_to_euler_xyz,
+    matrix_to_quat,
+    quat_to_matrix,
+    rotation_6d,
+)
 from trainer.objects import ObjectSet
-from trainer.rotations import matrix_to_euler_xyz, matrix_to_quat, quat_to_matrix, rotation_6d
 
 
 def representation_shape(name: str) -> tuple[int, ...]:
@@ -47,7 +53,7 @@ def object_representation(
         return torch.cat([center, matrix_to_quat(box_rot), objects.bbox_extents[ids]], dim=-1)
     if name == "sq":
         params = objects.sq_params[ids]
-        sq_rot = _euler_xyz_to_matrix(params[:, 5:8])
+        sq_rot = euler_xyz_to_matrix(params[:, 5:8])
         center = obj_pos + (rot @ params[:, 8:11, None])[..., 0]
         return torch.cat([params[:, :5], matrix_to_euler_xyz(rot @ sq_rot), center], dim=-1)
     if name.startswith("pc"):
@@ -60,15 +66,6 @@ def object_representation(
     raise ValueError(f"unknown representation {name!r}")
 
 
-def _euler_xyz_to_matrix(angles: torch.Tensor) -> torch.Tensor:
-    """(E, 3) extrinsic xyz Euler angles -> (E, 3, 3) = Rz(c) @ Ry(b) @ Rx(a)."""
-    a, b, c = angles.unbind(-1)
-    ca, sa, cb, sb, cc, sc = a.cos(), a.sin(), b.cos(), b.sin(), c.cos(), c.sin()
-    return torch.stack(
-        [
-            cc * cb, cc * sb * sa - sc * ca, cc * sb * ca + sc * sa,
-            sc * cb, sc * sb * sa + cc * ca, sc * sb * ca - cc * sa,
-            -sb, cb * sa, cb * ca,
-        ],
-        dim=-1,
-    ).reshape(-1, 3, 3)
+# tests/test_env.py still imports the old private name; drop this alias once it imports
+# geomprep.rotations.euler_xyz_to_matrix.
+_euler_xyz_to_matrix = euler_xyz_to_matrix

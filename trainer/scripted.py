@@ -16,9 +16,9 @@ from dataclasses import dataclass
 import torch
 from tensordict import TensorDict
 
+from geomprep.rotations import matrix_to_axis_angle, quat_to_matrix
 from trainer import constants as C
 from trainer.env import GraspEnv
-from trainer.rotations import matrix_to_axis_angle, quat_to_matrix
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,9 @@ import math
 
 import mujoco
 import numpy as np
+import torch
 
+from geomprep.rotations import axis_angle_to_quat
 from trainer import constants as C
 from trainer.config import PhysicsConfig, RobotConfig
 
@@ -20,9 +22,8 @@ ARM_RGBA = (0.55, 0.6, 0.65, 1.0)
 
 
 def _axis_angle_quat(axis: tuple[float, float, float], angle: float) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) of a rotation by ``angle`` rad about unit ``axis``."""
-    half = 0.5 * angle
-    return np.array([math.cos(half), *(math.sin(half) * np.asarray(axis))])
+    """Unit quaternion (4,) (w, x, y, z) of a rotation by ``angle`` rad about unit ``axis``."""
+    return axis_angle_to_quat(torch.as_tensor(axis, dtype=torch.float64) * angle).numpy()
 
 
 def add_ur5e(
