@@ -18,9 +18,12 @@ import click  # noqa: E402
 
 from geomprep.errors import run_cli  # noqa: E402
 from trainer.config import (  # noqa: E402
+    BACKENDS,
+    CONTEXTS,
     REPRESENTATIONS,
     REWARDS,
     ROBOTS,
+    TASKS,
     check_device,
     load_env_config,
     load_train_config,
@@ -33,6 +36,8 @@ RUN_OPTIONS = {
     "representation": "--repr", "reward.kind": "--reward", "robot.kind": "--robot",
     "objects": "--objects", "num_envs": "--num-envs", "device": "--device",
     "data_dir": "--data-dir", "compile": "--compile", "total_steps": "--steps", "seed": "--seed",
+    "task": "--task", "bin.num_objects": "--bin-objects", "context": "--context",
+    "backend": "--backend",
 }
 """The config field each ``trainer run`` option sets (a bad value's error names the option)."""
 
@@ -145,8 +150,18 @@ def demo(
 
 
 @cli.command()
+@click.option("--task", type=click.Choice(tuple(TASKS)), default=None,
+              help="lift (one object on the table) or bin (a target out of a cluttered bin) "
+              "[lift].")
+@click.option("--bin-objects", type=int, default=None,
+              help="Objects in the bin (bin task; the paper: 5 or 10) [5].")
+@click.option("--context", type=click.Choice(CONTEXTS), default=None,
+              help="bbox: the bin task also sees the other objects' boxes [none].")
+@click.option("--backend", type=click.Choice(BACKENDS), default=None,
+              help="Physics backend [cpu].")
 @click.option("--repr", "representation", type=click.Choice(REPRESENTATIONS), default=None,
-              help="Object representation the policy sees [default: sq].")
+              help="Object representation the policy sees [the task's: sq for lift, bbox for "
+              "bin].")
 @click.option("--reward", type=click.Choice(REWARDS), default=None,
               help="sdf (the paper), com (distance to the centre of mass), none (no shaping).")
 @click.option("--robot", type=click.Choice(ROBOTS), default=None, help="[default: ur5e]")
@@ -168,6 +183,7 @@ def demo(
               "false].")
 @_config_options
 def run(
+    task: str | None, bin_objects: int | None, context: str | None, backend: str | None,
     representation: str | None, reward: str | None, robot: str | None, objects: str | None,
     num_envs: int | None, steps: int | None, seed: int | None, device: str | None,
     run_dir: Path | None, resume_dir: Path | None, overwrite: bool, compile_env: bool | None,
@@ -183,7 +199,8 @@ def run(
         # change it is refused rather than silently ignored.
         compile_option = {True: "--compile", False: "--no-compile", None: None}[compile_env]
         given = {
-            "--repr": representation, "--reward": reward, "--robot": robot,
+            "--task": task, "--bin-objects": bin_objects, "--context": context,
+            "--backend": backend, "--repr": representation, "--reward": reward, "--robot": robot,
             "--objects": objects, "--num-envs": num_envs, "--seed": seed, "--device": device,
             "--run-dir": run_dir, "--config": config_path, "--data-dir": data_dir,
             "--overwrite": overwrite or None, compile_option: compile_env,
@@ -198,6 +215,8 @@ def run(
         return
     env = {
         k: v for k, v in {
+            "task": task, "context": context, "backend": backend,
+            "bin": {"num_objects": bin_objects} if bin_objects is not None else None,
             "representation": representation, "objects": objects, "num_envs": num_envs,
             "device": device, "data_dir": data_dir, "compile": compile_env,
             "reward": {"kind": reward} if reward else None,
@@ -210,8 +229,10 @@ def run(
     check_device(cfg.env.device, where, "use --device cpu")
     if run_dir is None:
         e = cfg.env
+        task = "" if e.task == "lift" else f"{e.task}{e.bin.num_objects}-"
+        context = "" if e.context == "none" else f"-ctx{e.context}"
         run_dir = Path("runs") / (
-            f"{e.representation}-{e.reward.kind}-{e.robot.kind}-s{cfg.run.seed}"
+            f"{task}{e.representation}{context}-{e.reward.kind}-{e.robot.kind}-s{cfg.run.seed}"
         )
 
     from trainer.ppo import train

@@ -30,6 +30,13 @@ ACTION_DIM = 11
 """6 hand-pose deltas, then 5 hand DoF targets (thumb rotation, thumb flexion, index, middle,
 ring + little), each in [-1, 1]."""
 REPRESENTATIONS = ("com", "sdf", "bbox", "sq", "pc32", "pc128", "pc512")
+TASKS = {"lift": "sq", "bin": "bbox"}
+"""The tasks (``trainer/tasks/``) and the object representation each uses by default: the paper
+lifts single objects (its comparison of representations) and picks the target out of a bin seen
+through its bounding box."""
+BACKENDS = ("cpu",)
+"""Physics backends (``trainer/sim/``): ``cpu`` is MuJoCo's C ``rollout`` on a thread pool."""
+CONTEXTS = ("none", "bbox")
 REWARDS = ("sdf", "com", "none")
 ROBOTS = ("ur5e", "floating")
 
@@ -57,10 +64,12 @@ class PhysicsConfig(_Checked):
     """Half-sizes of the table top (m); its top surface is at z = 0."""
     table_friction: tuple[float, float, float] = bounded((0.8, 0.005, 0.0001), ge=0)
     finger_friction: tuple[float, float, float] = bounded((1.0, 0.01, 0.0001), ge=0)
-    object_friction: tuple[float, float, float] = bounded((1.0, 0.01, 0.0001), ge=0)
     condim: int = bounded(4, choices=(1, 3, 4, 6))
     solref: tuple[float, float] = (0.01, 1.0)
     solimp: tuple[float, float, float, float, float] = (0.9, 0.95, 0.001, 0.5, 2.0)
+    """Contact softness of the robot's geoms. The objects' contact parameters (friction, condim,
+    solref, solimp) are geomprep's (``[mjcf]`` in its config), written into each object's MJCF and
+    used as they are, so geomprep's settle check and training see the same contacts."""
 
 
 @dataclass(frozen=True)
@@ -140,11 +149,45 @@ class InitConfig(_Checked):
 
 
 @dataclass(frozen=True)
+class BinConfig(_Checked):
+    """The bin-picking task (``trainer/tasks/bin.py``): a bin of a floor and four walls at the
+    table centre, ``num_objects`` objects dropped into it, one of them the target."""
+
+    num_objects: int = bounded(5, ge=1)
+    """Objects in the bin (the paper: 5 and 10), drawn without replacement from the object set."""
+    layouts: int = bounded(16, ge=1)
+    """Distinct bins (object draws) per run. Each is one compiled model on the CPU backend and
+    the envs share them round-robin: 16 models of 10 YCB objects cost ~0.1 s and ~10 MB each,
+    where one model per env would cost 256 of them at 256 envs."""
+    bank_size: int = bounded(16, ge=1)
+    """Settled clutter states per layout (each reset draws one, with a random quarter turn)."""
+    inner_half_size: tuple[float, float] = bounded((0.17, 0.17), gt=0)
+    """Half the inside length and width of the bin (m)."""
+    wall_height: float = bounded(0.06, gt=0)
+    wall_thickness: float = bounded(0.01, gt=0)
+    drop_spacing: float = bounded(0.06, ge=0)
+    """Vertical gap between the objects at release (m): they are dropped one above the other."""
+    settle_seconds: float = bounded(2.0, gt=0)
+    max_penetration: float = bounded(0.005, gt=0)
+    """A settled state with two objects (or an object and the bin) interpenetrating deeper than
+    this (m) is dropped again."""
+
+
+@dataclass(frozen=True)
 class EnvConfig(_Checked):
-    """The lifting task."""
+    """A grasping task: the scene, the robot, the objects and how the policy sees them."""
 
     num_envs: int = bounded(64, ge=1)
-    representation: str = bounded("sq", choices=REPRESENTATIONS)
+    task: str = bounded("lift", choices=tuple(TASKS))
+    """``lift``: one object on the table, lift it by h_bar. ``bin``: lift a given target out of
+    a bin of ``[bin] num_objects`` objects."""
+    representation: str = bounded("", choices=("", *REPRESENTATIONS))
+    """How the policy sees the object (the target in ``bin``); empty: the task's default
+    (``TASKS``: sq for lift, bbox for bin)."""
+    context: str = bounded("none", choices=CONTEXTS)
+    """``bbox``: the bin task also observes every other object's bounding box (pose + extents,
+    with a mask), read by a permutation-invariant encoder; ``none``: the paper (target only)."""
+    backend: str = bounded("cpu", choices=BACKENDS)
     objects: str = "builtin"
     """Object set: ``builtin``, ``ycb``, ``all``, or a comma list of names."""
     max_steps: int = bounded(300, ge=1)
@@ -167,6 +210,17 @@ class EnvConfig(_Checked):
     robot: RobotConfig = field(default_factory=RobotConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
     init: InitConfig = field(default_factory=InitConfig)
+    bin: BinConfig = field(default_factory=BinConfig)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not self.representation:
+            object.__setattr__(self, "representation", TASKS[self.task])
+        if self.context != "none" and self.task != "bin":
+            raise TrainerError(
+                f"context = {self.context!r}: only the bin task has other objects to see; "
+                "use --task bin or drop --context"
+            )
 
     @property
     def timestep(self) -> float:
@@ -204,6 +258,8 @@ class PPOConfig(_Checked):
     """The 3-layer MLP of the policy and of the value function."""
     pointnet_hidden: tuple[int, ...] = bounded((64, 128), ge=1)
     """Shared per-point MLP of the point-cloud encoder (then max pooling)."""
+    context_hidden: tuple[int, ...] = bounded((64, 64), ge=1)
+    """Shared per-object MLP of the context encoder (bin task with context; then a masked max)."""
     init_log_std: float = -0.5
     init_action_mean: tuple[float, ...] = (0.0,) * ACTION_DIM
     """Mean action of the untrained policy (the output layer's bias). Zero (the usual choice)
@@ -217,7 +273,7 @@ class PPOConfig(_Checked):
             raise field_error(
                 TrainerError, "lr_bounds", self.lr_bounds, "must be [lowest, highest]"
             )
-        for name in ("hidden", "pointnet_hidden"):
+        for name in ("hidden", "pointnet_hidden", "context_hidden"):
             if not getattr(self, name):
                 raise field_error(TrainerError, name, getattr(self, name), "needs a layer size")
         if len(self.init_action_mean) != ACTION_DIM:
@@ -257,6 +313,13 @@ def _build(
     cls: type, values: Mapping[str, Any], source: str | None, section: str = "", base: Any = None,
     names: Mapping[str, str] | None = None,
 ) -> Any:
+    if (
+        cls is EnvConfig and isinstance(base, EnvConfig) and "task" in values
+        and "representation" not in values and base.representation == TASKS[base.task]
+    ):
+        # Switching the task keeps an explicitly chosen representation, but not the old task's
+        # default: the new task's default applies.
+        values = {**values, "representation": ""}
     return build_dataclass(
         cls, values, source, TrainerError, section=section, base=base, names=names
     )
@@ -306,7 +369,12 @@ def override(section: Any, values: Mapping[str, Any], names: Mapping[str, str]) 
 
 def train_config_from_dict(values: Any, source: str = "config.json") -> TrainConfig:
     """The inverse of ``config_dict(train_config)`` (a run directory's config.json, named
-    ``source`` in errors)."""
+    ``source`` in errors). Runs written before the objects' contact parameters moved to
+    geomprep's MJCF carry ``physics.object_friction``: it is dropped (it equals geomprep's)."""
+    if isinstance(values, dict):
+        physics = values.get("env", {}).get("physics", {})
+        if isinstance(physics, dict):
+            physics.pop("object_friction", None)
     return _build(TrainConfig, values, source)
 
 

@@ -1,89 +1,175 @@
-"""Banks of settled initial object poses: each object dropped from random poses onto the table,
-simulated until it rests, and cached on disk (``data/interim/trainer/init_states``).
+"""Banks of settled initial object states: a scene's objects (one per slot) dropped from random
+poses, simulated together until they rest, and cached on disk
+(``data/interim/trainer/init_states``).
 
-The cache key covers the object's model (geomprep's mjcf cache key), the drop parameters and
-the physics, so changing any of them recomputes the bank; files are written atomically.
+Lift drops its one object onto the table; bin picking drops all of its objects into the bin one
+above the other, so the clutter settles together. A state is kept only if every object came to
+rest where it belongs (on the table; inside the bin) and no two bodies interpenetrate deeper
+than ``[bin] max_penetration``.
+
+The cache key covers every slot's model (geomprep's mjcf cache keys, in slot order), the scene's
+fixtures, the drop parameters and the physics, so changing any of them recomputes the bank;
+files are written atomically.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Sequence
 from pathlib import Path
 
 import mujoco
 import numpy as np
+import torch
 from mujoco import rollout
 
+from geomprep.rotations import random_quats
 from geomprep.store import atomic_path
-from trainer.assets.scene import build_object_scene
+from trainer.assets.scene import Scene, build_scene, slot_name, slot_qpos_addresses
 from trainer.config import EnvConfig, config_dict
+from trainer.errors import TrainerError
 
-BANK_VERSION = 1
+BANK_VERSION = 2
 MAX_REST_SPEED = 0.02
 """An object moving faster than this (m/s) after settling is not at rest: drop it again."""
+MAX_ATTEMPTS = 20
 
 
-def _random_quats(rng: np.random.Generator, n: int) -> np.ndarray:
-    """(n, 4) uniformly distributed unit quaternions (w, x, y, z)."""
-    quat = rng.normal(size=(n, 4))
-    return quat / np.linalg.norm(quat, axis=1, keepdims=True)
-
-
-def bank_key(cfg: EnvConfig, mjcf_key: str) -> str:
+def bank_key(cfg: EnvConfig, scene: Scene, mjcf_keys: Sequence[str]) -> str:
     payload = {
         "version": BANK_VERSION,
-        "mjcf": mjcf_key,
+        "mjcf": list(mjcf_keys),
+        "fixtures": list(scene.fixtures),
         "init": config_dict(cfg.init),
         "physics": config_dict(cfg.physics),
+        "bin": config_dict(cfg.bin) if "bin" in scene.fixtures else None,
     }
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def drop_and_settle(cfg: EnvConfig, xml_path: Path, size: int, seed: int) -> np.ndarray:
-    """Settled object poses (size, 7): position (m, world) and quaternion (w, x, y, z)."""
-    model = build_object_scene(cfg, xml_path).compile()
+def slot_radii(model: mujoco.MjModel, num_slots: int) -> np.ndarray:
+    """(K,) radius (m) of each slot's object around its body origin (the centre of mass)."""
+    radii = np.zeros(num_slots)
+    for k in range(num_slots):
+        geoms = np.flatnonzero(model.geom_bodyid == model.body(slot_name(k)).id)
+        reach = np.linalg.norm(model.geom_pos[geoms], axis=1) + model.geom_rbound[geoms]
+        radii[k] = reach.max() if len(geoms) else 0.05
+    return radii
+
+
+def _drop_poses(
+    cfg: EnvConfig, scene: Scene, radii: np.ndarray, n: int, rng: np.random.Generator
+) -> np.ndarray:
+    """(n, K, 7) release poses: position (m) and quaternion (w, x, y, z) of every slot."""
+    K = scene.num_slots
+    pose = np.zeros((n, K, 7))
+    generator = torch.Generator().manual_seed(int(rng.integers(2**62)))
+    quats = random_quats(n * K, generator=generator, dtype=torch.float64)
+    pose[..., 3:] = quats.numpy().reshape(n, K, 4)
+    low, high = cfg.init.drop_height
+    if "bin" not in scene.fixtures:
+        pose[..., :2] = rng.uniform(-cfg.init.xy_range, cfg.init.xy_range, size=(n, K, 2))
+        pose[..., 2] = radii + rng.uniform(low, high, size=(n, K))
+        return pose
+    # Into the bin: each object above the previous one, its centre far enough from the walls.
+    inner = np.array(cfg.bin.inner_half_size)
+    reach = np.clip(inner[None, :] - radii[:, None], 0.0, None)  # (K, 2)
+    pose[..., :2] = rng.uniform(-1.0, 1.0, size=(n, K, 2)) * reach
+    base = cfg.bin.wall_height + rng.uniform(low, high, size=(n, 1))
+    stack = np.cumsum(2 * radii + cfg.bin.drop_spacing) - radii  # centre of each in the stack
+    pose[..., 2] = base + stack[None, :]
+    return pose
+
+
+def _accepted(
+    cfg: EnvConfig, scene: Scene, model: mujoco.MjModel, final: np.ndarray, address: np.ndarray
+) -> np.ndarray:
+    """(n,) bool: which settled full-physics states (n, nstate) are good initial states."""
+    nq = model.nq
+    qpos = final[:, 1 : 1 + nq]
+    qvel = final[:, 1 + nq : 1 + nq + model.nv]
+    pos = qpos[:, address[:, None] + np.arange(3)]  # (n, K, 3)
+    # The free joints' linear velocities start at the same index as their dof addresses.
+    dof = np.array([model.jnt_dofadr[model.body_jntadr[model.body(slot_name(k)).id]]
+                    for k in range(scene.num_slots)])
+    speed = np.linalg.norm(qvel[:, dof[:, None] + np.arange(3)], axis=-1)
+    good = np.isfinite(final).all(axis=1) & (speed < MAX_REST_SPEED).all(axis=1)
+    if "bin" in scene.fixtures:
+        inner = np.array(cfg.bin.inner_half_size)
+        inside = (np.abs(pos[..., :2]) < inner).all(axis=-1) & (pos[..., 2] > -0.01)
+        good &= inside.all(axis=1)
+    else:
+        half_table = np.array(cfg.physics.table_size[:2])
+        on_table = (pos[..., 2] > 0.0) & (np.abs(pos[..., :2]) < half_table).all(axis=-1)
+        good &= on_table.all(axis=1)
+    if scene.num_slots > 1 or "bin" in scene.fixtures:
+        data = mujoco.MjData(model)
+        for i in np.flatnonzero(good):
+            data.qpos[:] = qpos[i]
+            mujoco.mj_forward(model, data)
+            depth = -min((data.contact[c].dist for c in range(data.ncon)), default=0.0)
+            good[i] = depth <= cfg.bin.max_penetration
+    return good
+
+
+def drop_and_settle(
+    cfg: EnvConfig, scene: Scene, xmls: Sequence[Path], size: int, seed: int
+) -> np.ndarray:
+    """Settled states (size, K, 7) of the scene's objects: position (m, world) and quaternion
+    (w, x, y, z) of every slot."""
+    model = build_scene(cfg, scene, xmls, robot=False).compile()
     data = mujoco.MjData(model)
-    radius = float(np.max(np.linalg.norm(model.mesh_vert, axis=1))) if model.nmeshvert else 0.1
-    nstep = int(round(cfg.init.settle_seconds / model.opt.timestep))
-    nstate = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    address = slot_qpos_addresses(model, scene.num_slots)
+    radii = slot_radii(model, scene.num_slots)
+    seconds = cfg.bin.settle_seconds if "bin" in scene.fixtures else cfg.init.settle_seconds
+    nstep = int(round(seconds / model.opt.timestep))
+    full = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    nstate = mujoco.mj_stateSize(model, full)
     rng = np.random.default_rng(seed)
-    half_table = np.array(cfg.physics.table_size[:2])
     kept: list[np.ndarray] = []
-    for _attempt in range(20):
+    for _attempt in range(MAX_ATTEMPTS):
         n = 2 * size
         state = np.zeros((n, nstate))
-        mujoco.mj_getState(model, data, state[0], mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        mujoco.mj_getState(model, data, state[0], full)
         state[:] = state[0]
-        qpos = state[:, 1 : 1 + model.nq]
-        qpos[:, :2] = rng.uniform(-cfg.init.xy_range, cfg.init.xy_range, size=(n, 2))
-        qpos[:, 2] = radius + rng.uniform(*cfg.init.drop_height, size=n)
-        qpos[:, 3:7] = _random_quats(rng, n)
-        state[:, 1 : 1 + model.nq] = qpos
+        pose = _drop_poses(cfg, scene, radii, n, rng)
+        columns = 1 + address[:, None] + np.arange(7)  # qpos starts after the time
+        state[:, columns] = pose
         with rollout.Rollout(nthread=0) as runner:
             out, _ = runner.rollout(model, [data], state, nstep=nstep)
         final = out[:, -1]
-        pos = final[:, 1:4]
-        speed = np.linalg.norm(final[:, 1 + model.nq : 4 + model.nq], axis=1)
-        on_table = (pos[:, 2] > 0.0) & np.all(np.abs(pos[:, :2]) < half_table, axis=1)
-        good = on_table & (speed < MAX_REST_SPEED) & np.isfinite(final).all(axis=1)
-        kept.extend(final[good, 1:8])
+        good = _accepted(cfg, scene, model, final, address)
+        kept.extend(final[good][:, columns])
         if len(kept) >= size:
             return np.stack(kept[:size])
-    raise RuntimeError(
-        f"{xml_path.stem}: fewer than {size} drops came to rest on the table; check the model "
-        "(`geomprep show`) or lower [init] drop_height"
+    where = "inside the bin" if "bin" in scene.fixtures else "on the table"
+    names = ", ".join(Path(x).stem for x in xmls)
+    raise TrainerError(
+        f"{names}: fewer than {size} drops came to rest {where} in {MAX_ATTEMPTS} attempts; check "
+        "the models (`geomprep show`), or lower [init] drop_height / enlarge the bin"
     )
 
 
-def load_or_build_bank(cfg: EnvConfig, name: str, xml_path: Path, mjcf_key: str) -> np.ndarray:
-    """The cached bank for one object, built on first use: (bank_size, 7) float64."""
+def load_or_build_bank(
+    cfg: EnvConfig, scene: Scene, names: Sequence[str], xmls: Sequence[Path],
+    mjcf_keys: Sequence[str], size: int,
+) -> np.ndarray:
+    """The cached bank of one assignment (slot k holds ``names[k]``), built on first use:
+    (size, K, 7) float64."""
     cache_dir = Path(cfg.data_dir) / "interim" / "trainer" / "init_states"
-    path = cache_dir / f"{name}-{bank_key(cfg, mjcf_key)}.npy"
+    label = names[0] if len(names) == 1 else f"{len(names)}obj"
+    path = cache_dir / f"{label}-{bank_key(cfg, scene, mjcf_keys)}-{size}.npy"
     if path.is_file():
-        return np.load(path)
-    seed = cfg.init.seed + int(hashlib.sha256(name.encode()).hexdigest()[:8], 16)
-    bank = drop_and_settle(cfg, xml_path, cfg.init.bank_size, seed)
+        try:
+            bank = np.load(path)
+            if bank.shape == (size, scene.num_slots, 7):
+                return bank
+        except (OSError, ValueError):
+            pass  # a damaged cache file is rebuilt, never trusted
+    digest = hashlib.sha256("\0".join(names).encode()).hexdigest()[:8]
+    seed = cfg.init.seed + int(digest, 16)
+    bank = drop_and_settle(cfg, scene, xmls, size, seed)
     cache_dir.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp, open(tmp, "wb") as handle:
         np.save(handle, bank)

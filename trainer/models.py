@@ -1,9 +1,12 @@
 """Policy and value networks: observation normalization, a PointNet-like encoder for point
 clouds, 3-layer MLPs, and the TorchRL modules the PPO loop uses.
 
-Observation keys come from ``trainer.env``: ``proprio`` (E, 20) and ``object`` (E, D) or
-(E, N, 3) for point clouds. Values are predicted normalized (``ValueNorm``): the critic used by
-the loss outputs the normalized value, the one used by GAE the value in reward units.
+The networks are built from the env's observation spec (``trainer.tasks.observation_spec``):
+``proprio`` (E, P), ``object`` (E, D) or (E, N, 3) for point clouds, and for the bin task with
+context ``context`` (E, M, C) with ``context_mask`` (E, M) bool, read by a permutation-invariant
+encoder (a shared per-object MLP, then a max over the objects the mask keeps). Values are
+predicted normalized (``ValueNorm``): the critic used by the loss outputs the normalized value,
+the one used by GAE the value in reward units.
 """
 
 from __future__ import annotations
@@ -11,11 +14,10 @@ from __future__ import annotations
 import torch
 from tensordict.nn import TensorDictModule
 from torch import nn
+from torchrl.data import Composite
 from torchrl.modules import IndependentNormal, ProbabilisticActor
 
 from trainer.config import ACTION_DIM, PPOConfig
-from trainer.env import PROPRIO_DIM
-from trainer.representations import representation_shape
 
 
 class RunningNorm(nn.Module):
@@ -59,20 +61,41 @@ class RunningNorm(nn.Module):
         return z * (self.var + self.eps).sqrt() + self.mean
 
 
+class ObservationShapes:
+    """Per-env shapes of the observations the networks read, from an observation spec."""
+
+    def __init__(self, spec: Composite) -> None:
+        self.proprio = tuple(spec["proprio"].shape[1:])
+        self.object = tuple(spec["object"].shape[1:])
+        self.context = tuple(spec["context"].shape[1:]) if "context" in spec.keys() else None  # noqa: SIM118
+
+    @property
+    def keys(self) -> list[str]:
+        """The observation keys the networks take, in argument order."""
+        return ["proprio", "object"] + (["context", "context_mask"] if self.context else [])
+
+
 class ObservationNorm(nn.Module):
-    """Normalizers of ``proprio`` and ``object`` (shared by actor and critic). Point clouds are
-    normalized per coordinate, pooled over points, so the encoder stays permutation-invariant."""
+    """Normalizers of ``proprio``, ``object`` and ``context`` (shared by actor and critic).
+    Point clouds are normalized per coordinate, pooled over points, and context boxes per
+    feature, pooled over the objects the mask keeps, so the encoders stay
+    permutation-invariant."""
 
-    def __init__(self, representation: str) -> None:
+    def __init__(self, shapes: ObservationShapes) -> None:
         super().__init__()
-        shape = representation_shape(representation)
-        self.is_cloud = len(shape) == 2
-        self.proprio = RunningNorm((PROPRIO_DIM,))
-        self.object = RunningNorm((3,) if self.is_cloud else shape)
+        self.is_cloud = len(shapes.object) == 2
+        self.proprio = RunningNorm(shapes.proprio)
+        self.object = RunningNorm((3,) if self.is_cloud else shapes.object)
+        self.context = RunningNorm(shapes.context[-1:]) if shapes.context else None
 
-    def update(self, proprio: torch.Tensor, obj: torch.Tensor) -> None:
+    def update(
+        self, proprio: torch.Tensor, obj: torch.Tensor, context: torch.Tensor | None = None,
+        context_mask: torch.Tensor | None = None,
+    ) -> None:
         self.proprio.update(proprio)
         self.object.update(obj)
+        if self.context is not None and context is not None:
+            self.context.update(context[context_mask])
 
     def forward(self, proprio: torch.Tensor, obj: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:  # noqa: E501
         return self.proprio(proprio), self.object(obj)
@@ -89,33 +112,47 @@ def mlp(sizes: list[int], activation: type[nn.Module] = nn.ELU, last_activation:
 
 class Encoder(nn.Module):
     """Normalized observation -> feature vector: the object representation as it is, or for
-    point clouds a shared per-point MLP followed by max pooling (PointNet-like)."""
+    point clouds a shared per-point MLP followed by max pooling (PointNet-like); the context
+    boxes through a shared per-object MLP and a max over the kept objects (zeros if none)."""
 
-    def __init__(self, representation: str, norm: ObservationNorm, cfg: PPOConfig) -> None:
+    def __init__(self, shapes: ObservationShapes, norm: ObservationNorm, cfg: PPOConfig) -> None:
         super().__init__()
         self.norm = norm
-        shape = representation_shape(representation)
+        self.out_dim = shapes.proprio[0]
         if norm.is_cloud:
             self.points = mlp([3, *cfg.pointnet_hidden])
-            self.out_dim = PROPRIO_DIM + cfg.pointnet_hidden[-1]
+            self.out_dim += cfg.pointnet_hidden[-1]
         else:
             self.points = None
-            self.out_dim = PROPRIO_DIM + shape[0]
+            self.out_dim += shapes.object[0]
+        self.context = None
+        if shapes.context:
+            self.context = mlp([shapes.context[-1], *cfg.context_hidden])
+            self.out_dim += cfg.context_hidden[-1]
 
-    def forward(self, proprio: torch.Tensor, obj: torch.Tensor) -> torch.Tensor:
+    def forward(
+        self, proprio: torch.Tensor, obj: torch.Tensor, context: torch.Tensor | None = None,
+        context_mask: torch.Tensor | None = None,
+    ) -> torch.Tensor:
         proprio, obj = self.norm(proprio, obj)
         if self.points is not None:
             obj = self.points(obj).amax(dim=-2)
-        return torch.cat([proprio, obj], dim=-1)
+        parts = [proprio, obj]
+        if self.context is not None:
+            features = self.context(self.norm.context(context))
+            keep = context_mask[..., None]
+            pooled = features.masked_fill(~keep, float("-inf")).amax(dim=-2)
+            parts.append(torch.where(keep.any(dim=-2), pooled, torch.zeros_like(pooled)))
+        return torch.cat(parts, dim=-1)
 
 
 class PolicyNet(nn.Module):
     """(proprio, object) -> (loc, scale) of a diagonal Gaussian over the 11-d action; the
     scale is state-independent (a learned log-std per action dimension)."""
 
-    def __init__(self, representation: str, norm: ObservationNorm, cfg: PPOConfig) -> None:
+    def __init__(self, shapes: ObservationShapes, norm: ObservationNorm, cfg: PPOConfig) -> None:
         super().__init__()
-        self.encoder = Encoder(representation, norm, cfg)
+        self.encoder = Encoder(shapes, norm, cfg)
         self.body = mlp([self.encoder.out_dim, *cfg.hidden])
         self.loc = nn.Linear(cfg.hidden[-1], ACTION_DIM)
         if len(cfg.init_action_mean) != ACTION_DIM:
@@ -125,8 +162,8 @@ class PolicyNet(nn.Module):
             self.loc.weight.mul_(0.01)  # start near the mean action whatever the observation
         self.log_std = nn.Parameter(torch.full((ACTION_DIM,), cfg.init_log_std))
 
-    def forward(self, proprio: torch.Tensor, obj: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:  # noqa: E501
-        loc = self.loc(self.body(self.encoder(proprio, obj)))
+    def forward(self, *obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        loc = self.loc(self.body(self.encoder(*obs)))
         scale = self.log_std.clamp(-5.0, 1.0).exp().expand_as(loc)
         return loc, scale
 
@@ -134,13 +171,13 @@ class PolicyNet(nn.Module):
 class ValueNet(nn.Module):
     """(proprio, object) -> normalized state value (E, 1)."""
 
-    def __init__(self, representation: str, norm: ObservationNorm, cfg: PPOConfig) -> None:
+    def __init__(self, shapes: ObservationShapes, norm: ObservationNorm, cfg: PPOConfig) -> None:
         super().__init__()
-        self.encoder = Encoder(representation, norm, cfg)
+        self.encoder = Encoder(shapes, norm, cfg)
         self.body = mlp([self.encoder.out_dim, *cfg.hidden, 1], last_activation=False)
 
-    def forward(self, proprio: torch.Tensor, obj: torch.Tensor) -> torch.Tensor:
-        return self.body(self.encoder(proprio, obj))
+    def forward(self, *obs: torch.Tensor) -> torch.Tensor:
+        return self.body(self.encoder(*obs))
 
 
 class Denormalize(nn.Module):
@@ -151,8 +188,8 @@ class Denormalize(nn.Module):
         self.value_net = value_net
         self.value_norm = value_norm
 
-    def forward(self, proprio: torch.Tensor, obj: torch.Tensor) -> torch.Tensor:
-        return self.value_norm.denormalize(self.value_net(proprio, obj))
+    def forward(self, *obs: torch.Tensor) -> torch.Tensor:
+        return self.value_norm.denormalize(self.value_net(*obs))
 
 
 class Agent(nn.Module):
@@ -160,16 +197,18 @@ class Agent(nn.Module):
 
     ``actor``: TorchRL ProbabilisticActor writing ``action`` and its log-prob;
     ``critic``: normalized ``state_value`` (for the loss); ``critic_denorm``: ``state_value``
-    in reward units (for GAE).
+    in reward units (for GAE). ``observation_spec``: the env's (``trainer.tasks.observation_spec``).
     """
 
-    def __init__(self, representation: str, cfg: PPOConfig) -> None:
+    def __init__(self, observation_spec: Composite, cfg: PPOConfig) -> None:
         super().__init__()
-        self.obs_norm = ObservationNorm(representation)
+        shapes = ObservationShapes(observation_spec)
+        self.obs_keys = shapes.keys
+        self.obs_norm = ObservationNorm(shapes)
         self.value_norm = RunningNorm((1,), clip=1e6)
-        self.policy_net = PolicyNet(representation, self.obs_norm, cfg)
-        self.value_net = ValueNet(representation, self.obs_norm, cfg)
-        keys = ["proprio", "object"]
+        self.policy_net = PolicyNet(shapes, self.obs_norm, cfg)
+        self.value_net = ValueNet(shapes, self.obs_norm, cfg)
+        keys = self.obs_keys
         self.actor = ProbabilisticActor(
             TensorDictModule(self.policy_net, in_keys=keys, out_keys=["loc", "scale"]),
             in_keys=["loc", "scale"],

@@ -35,9 +35,9 @@ from tqdm import tqdm
 
 from geomprep.store import atomic_path
 from trainer.config import TrainConfig, check_device, config_dict, read_train_config
-from trainer.env import GraspEnv
 from trainer.errors import TrainerError
 from trainer.models import Agent
+from trainer.tasks import GraspTask, make_env, observation_spec
 
 METRICS = (
     "iteration", "env_steps", "wall_time_s", "fps", "success_rate", "h_bar",
@@ -158,8 +158,9 @@ def train(
     torch.set_num_threads(cfg.run.torch_threads)
     torch.manual_seed(cfg.run.seed)
     ppo = cfg.ppo
-    env = GraspEnv(cfg.env, seed=cfg.run.seed)
-    agent = Agent(cfg.env.representation, ppo).to(env.device)
+    env = make_env(cfg.env, seed=cfg.run.seed)
+    device = env.device
+    agent = Agent(env.observation_spec, ppo).to(device)
     optimizer = torch.optim.Adam(agent.parameters(), lr=ppo.lr)
     advantage = GAE(gamma=ppo.gamma, lmbda=ppo.lmbda, value_network=agent.critic_denorm)
     loss_module = ClipPPOLoss(
@@ -167,7 +168,8 @@ def train(
         entropy_bonus=True, entropy_coeff=ppo.entropy_coef,
         critic_coeff=ppo.critic_coef, loss_critic_type="l2", normalize_advantage=True,
     )
-    shuffle = torch.Generator().manual_seed(cfg.run.seed)
+    # Every tensor of the loop lives on the env's device; the minibatch order is drawn there too.
+    shuffle = torch.Generator(device=device).manual_seed(cfg.run.seed)
     frames = iteration_frames(cfg)
     total_iterations = math.ceil(cfg.run.total_steps / frames)
     minibatch = minibatch_size(cfg)
@@ -177,8 +179,8 @@ def train(
     outcomes: deque[bool] = deque(maxlen=window)
     target_outcomes: deque[bool] = deque(maxlen=window)
     h_bar = cfg.env.reward.h_bar_start
-    episode_return = torch.zeros(cfg.env.num_envs)
-    episode_length = torch.zeros(cfg.env.num_envs)
+    episode_return = torch.zeros(cfg.env.num_envs, device=device)
+    episode_length = torch.zeros(cfg.env.num_envs, device=device)
     iteration, wall_offset = 0, 0.0
     if checkpoint is not None:
         agent.load_state_dict(checkpoint["agent"])
@@ -188,7 +190,8 @@ def train(
         # (Checkpoints from before the curriculum existed lack both.)
         target_outcomes.extend(checkpoint.get("target_outcomes", []))
         h_bar = checkpoint.get("h_bar", cfg.env.reward.h_bar)
-        episode_return, episode_length = checkpoint["episode_return"], checkpoint["episode_length"]
+        episode_return = checkpoint["episode_return"].to(device)
+        episode_length = checkpoint["episode_length"].to(device)
         iteration, wall_offset = checkpoint["iteration"], checkpoint["wall_time_s"]
         env.restore_on_next_reset(checkpoint["env"])
         _truncate_metrics(run.metrics, iteration)
@@ -199,6 +202,8 @@ def train(
     )
     if checkpoint is not None:
         torch.set_rng_state(checkpoint["torch_rng"])  # after the collector's own set-up
+        if device.type == "cuda" and "cuda_rng" in checkpoint:
+            torch.cuda.set_rng_state(checkpoint["cuda_rng"], device)
     writer = SummaryWriter(str(run.path / "tb"), purge_step=iteration + 1 if resume else None)
     bar = tqdm(
         total=total_iterations * frames, initial=iteration * frames, unit="step",
@@ -221,10 +226,12 @@ def train(
             data["value_target"] = agent.value_norm(data["value_target"])
             data["state_value"] = agent.value_norm(data["state_value"])
             flat = data.reshape(-1)
-            losses: dict[str, list[float]] = {k: [] for k in LOSS_KEYS}
+            # Loss statistics stay on the device (a float() per minibatch would wait for the
+            # GPU every time); they are read once per epoch (the learning-rate schedule).
+            losses: dict[str, list[torch.Tensor]] = {k: [] for k in LOSS_KEYS}
             for _ in range(ppo.epochs):
-                order = torch.randperm(flat.shape[0], generator=shuffle)
-                epoch_kl: list[float] = []
+                order = torch.randperm(flat.shape[0], generator=shuffle, device=device)
+                epoch_kl: list[torch.Tensor] = []
                 for index in order.split(minibatch):
                     out = loss_module(flat[index])
                     loss = out["loss_objective"] + out["loss_critic"]
@@ -236,11 +243,11 @@ def train(
                     optimizer.step()
                     for key in LOSS_KEYS:
                         if key in out:
-                            losses[key].append(float(out[key].detach().mean()))
+                            losses[key].append(out[key].detach().mean())
                     epoch_kl.append(losses["kl_approx"][-1])
                 if ppo.lr_schedule == "adaptive":
-                    _adapt_lr(optimizer, sum(epoch_kl) / len(epoch_kl), ppo)
-            agent.obs_norm.update(data["proprio"], data["object"])
+                    _adapt_lr(optimizer, float(torch.stack(epoch_kl).mean()), ppo)
+            agent.obs_norm.update(*(data[key] for key in agent.obs_keys))
 
             stats = _episode_stats(
                 data, cfg.env.reward.h_bar, outcomes, target_outcomes, episode_return,
@@ -263,7 +270,8 @@ def train(
                 "h_bar": row_h_bar,
                 "target_success_rate": target_rate,
                 **stats,
-                **{k: (sum(v) / len(v) if v else float("nan")) for k, v in losses.items()},
+                **{k: (float(torch.stack(v).mean()) if v else float("nan"))
+                   for k, v in losses.items()},
                 "action_std": float(agent.policy_net.log_std.detach().exp().mean()),
                 "lr": optimizer.param_groups[0]["lr"],
             }
@@ -322,22 +330,26 @@ def _episode_stats(
     done = data["next", "done"][..., 0]
     target_success = data["next", "success"][..., 0]
     success = target_success & (data["next", "lift_height"][..., 0] >= task_h_bar)
-    returns, lengths = [], []
+    # On the device, without a host sync per step: the return and length each env has at each
+    # step, then one transfer of the ended episodes.
+    return_at = torch.empty_like(reward)
+    length_at = torch.empty_like(reward)
     for t in range(reward.shape[1]):
         episode_return += reward[:, t]
         episode_length += 1
-        ended = done[:, t]
-        if ended.any():
-            returns.append(episode_return[ended].clone())
-            lengths.append(episode_length[ended].clone())
-            outcomes.extend(success[ended, t].tolist())
-            target_outcomes.extend(target_success[ended, t].tolist())
-            episode_return[ended] = 0.0
-            episode_length[ended] = 0.0
-    ended_returns = torch.cat(returns) if returns else torch.zeros(0)
-    ended_lengths = torch.cat(lengths) if lengths else torch.zeros(0)
+        return_at[:, t] = episode_return
+        length_at[:, t] = episode_length
+        keep = (~done[:, t]).to(episode_return.dtype)
+        episode_return.mul_(keep)
+        episode_length.mul_(keep)
+    # Episodes in the order they ended (time first, then env).
+    ended = done.T.cpu()
+    ended_returns = return_at.T.cpu()[ended]
+    ended_lengths = length_at.T.cpu()[ended]
+    outcomes.extend(success.T.cpu()[ended].tolist())
+    target_outcomes.extend(target_success.T.cpu()[ended].tolist())
     return {
-        "episodes": int(done.sum()),
+        "episodes": int(ended.sum()),
         "episode_return": float(ended_returns.mean()) if len(ended_returns) else float("nan"),
         "episode_length": float(ended_lengths.mean()) if len(ended_lengths) else float("nan"),
         "unstable_resets": int(data["next", "unstable"].sum()),
@@ -368,7 +380,7 @@ def _truncate_metrics(path: Path, iteration: int) -> None:
 def _save_checkpoint(
     run: RunDir, iteration: int, agent: Agent, optimizer: torch.optim.Optimizer,
     shuffle: torch.Generator, outcomes: deque, target_outcomes: deque, h_bar: float,
-    episode_return: torch.Tensor, episode_length: torch.Tensor, env: GraspEnv,
+    episode_return: torch.Tensor, episode_length: torch.Tensor, env: GraspTask,
     wall_time_s: float,
 ) -> None:
     state = {
@@ -378,6 +390,7 @@ def _save_checkpoint(
         "optimizer": optimizer.state_dict(),
         "shuffle_rng": shuffle.get_state(),
         "torch_rng": torch.get_rng_state(),
+        **({"cuda_rng": torch.cuda.get_rng_state(env.device)} if env.device.type == "cuda" else {}),
         "outcomes": list(outcomes),
         "target_outcomes": list(target_outcomes),
         "h_bar": h_bar,
@@ -458,7 +471,7 @@ def load_agent(run_dir: Path, device: str | None = None) -> tuple[TrainConfig, A
         cfg.env.device, f"device {cfg.env.device!r} of {run.path}", "pass --device cpu"
     )
     state = _load_checkpoint(run, map_location="cpu")  # whatever device it was trained on
-    agent = Agent(cfg.env.representation, cfg.ppo)
+    agent = Agent(observation_spec(cfg.env, 1)["observation"], cfg.ppo)
     agent.load_state_dict(state["agent"])
     agent.eval()
     return cfg, agent.to(cfg.env.device)

@@ -64,8 +64,3 @@ def object_representation(
             raise ValueError("the SDF grids were not loaded")
         return objects.sdf.query(fingertips, obj_pos, obj_quat, ids)
     raise ValueError(f"unknown representation {name!r}")
-
-
-# tests/test_env.py still imports the old private name; drop this alias once it imports
-# geomprep.rotations.euler_xyz_to_matrix.
-_euler_xyz_to_matrix = euler_xyz_to_matrix

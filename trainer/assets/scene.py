@@ -1,13 +1,21 @@
-"""The lifting scene: table, robot (UR5e + SIH hand, or the hand on a floating base) and one
-object from geomprep's MJCF directory, assembled with ``mujoco.MjSpec``.
+"""Scenes: the robot (UR5e + SIH hand, or the hand on a floating base), fixtures (the table;
+for bin picking a bin of a floor and four walls) and K object *slots*, assembled with
+``mujoco.MjSpec``.
+
+A ``Scene`` says what is fixed; an *assignment* (K object MJCF files) says which object fills
+each slot. Slot k is the body ``slot{k}`` with one free joint: code finds objects by slot name
+(``slot_qpos_addresses``), never by body order, and every assignment of the same scene has the
+same qpos layout (the robot's joints first, then 7 per slot), so one batch can mix them.
 
 World frame: the table top is the plane z = 0 around the origin; the UR5e base stands at
-``RobotConfig.base_pos``; the object rests near the origin.
+``RobotConfig.base_pos``; objects (and the bin) sit near the origin.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
@@ -20,11 +28,40 @@ from trainer.config import EnvConfig, PhysicsConfig
 from trainer.errors import TrainerError
 
 FLOOR_Z = -0.75
-OBJECT_PREFIX = "object/"
+FIXTURES = ("table", "bin")
 # Palm-down pose of the hand at reset, as in the authors' home configuration: palmar side
 # (+y_palm) faces the table, fingers (+z_palm) point away from the robot (-y), thumb toward -x.
 # Columns are the palm axes in the world frame.
 PALM_DOWN = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])
+
+
+@dataclass(frozen=True)
+class Scene:
+    """What a task's scene holds besides the robot: ``fixtures`` (``table``, ``bin``) and
+    ``num_slots`` object slots."""
+
+    fixtures: tuple[str, ...] = ("table",)
+    num_slots: int = 1
+
+    def __post_init__(self) -> None:
+        unknown = set(self.fixtures) - set(FIXTURES)
+        if unknown:
+            raise ValueError(f"unknown fixtures {sorted(unknown)}; known: {FIXTURES}")
+        if self.num_slots < 0:
+            raise ValueError("num_slots must be >= 0")
+
+
+def slot_name(k: int) -> str:
+    """Body name of object slot ``k`` (its geoms and joint are prefixed ``slot{k}/``)."""
+    return f"slot{k}"
+
+
+def slot_qpos_addresses(model: mujoco.MjModel, num_slots: int) -> np.ndarray:
+    """(K,) int: where each slot's free joint starts in qpos (3 position, then 4 quaternion)."""
+    return np.array(
+        [model.jnt_qposadr[model.body_jntadr[model.body(slot_name(k)).id]] for k in range(num_slots)],  # noqa: E501
+        dtype=np.int64,
+    )
 
 
 def _matrix_to_quat(rot: np.ndarray) -> np.ndarray:
@@ -83,28 +120,51 @@ def _add_table(spec: mujoco.MjSpec, physics: PhysicsConfig) -> None:
     camera.quat = _matrix_to_quat(np.stack([x_axis, y_axis, np.cross(x_axis, y_axis)], axis=1))
 
 
-def add_object(spec: mujoco.MjSpec, xml_path: Path, physics: PhysicsConfig) -> str:
-    """Attach geomprep's object model (a body with a free joint, named after the object) at the
-    world origin; return the body name (``OBJECT_PREFIX + name``). Its collision hulls get the
-    scene's contact settings."""
+def _add_bin(spec: mujoco.MjSpec, cfg: EnvConfig) -> None:
+    """A bin at the table centre: a thin floor (top at z = 0, on the table) and four walls
+    around an inside of ``2 * inner_half_size``."""
+    b = cfg.bin
+    hx, hy = b.inner_half_size
+    t, h = b.wall_thickness, b.wall_height
+    boxes = {
+        "bin_floor": ((0.0, 0.0, -0.5 * t), (hx + t, hy + t, 0.5 * t)),
+        "bin_wall_x+": ((hx + 0.5 * t, 0.0, 0.5 * h), (0.5 * t, hy + t, 0.5 * h)),
+        "bin_wall_x-": ((-hx - 0.5 * t, 0.0, 0.5 * h), (0.5 * t, hy + t, 0.5 * h)),
+        "bin_wall_y+": ((0.0, hy + 0.5 * t, 0.5 * h), (hx, 0.5 * t, 0.5 * h)),
+        "bin_wall_y-": ((0.0, -hy - 0.5 * t, 0.5 * h), (hx, 0.5 * t, 0.5 * h)),
+    }
+    for name, (pos, size) in boxes.items():
+        geom = spec.worldbody.add_geom()
+        geom.name = name
+        geom.type = mujoco.mjtGeom.mjGEOM_BOX
+        geom.pos = pos
+        geom.size = size
+        geom.rgba = (0.45, 0.55, 0.7, 1.0)
+        geom.friction = cfg.physics.table_friction
+        geom.contype = C.BIT_STATIC
+        geom.conaffinity = C.BIT_OBJECT | C.BIT_ARM | C.BIT_HAND
+        geom.condim = cfg.physics.condim
+
+
+def add_object(spec: mujoco.MjSpec, xml_path: Path, slot: int) -> str:
+    """Put geomprep's object model (a body with a free joint, named after the object) into
+    slot ``slot`` at the world origin; return the body name (``slot{k}``). The hulls keep the
+    contact parameters geomprep wrote (its ``[mjcf]`` config); only their collision groups are
+    the scene's."""
     if not xml_path.is_file():
         raise TrainerError(
             f"object model {xml_path} not found: build it with `geomprep build-all --objects "
             f"{xml_path.stem}`"
         )
-    name = xml_path.stem
     child = mujoco.MjSpec.from_file(str(xml_path))
     frame = spec.worldbody.add_frame()
-    body = frame.attach_body(child.body(name), OBJECT_PREFIX, "")
+    body = frame.attach_body(child.body(xml_path.stem), f"{slot_name(slot)}/", "")
+    body.name = slot_name(slot)
     for geom in body.geoms:
         if geom.contype == 0 and geom.conaffinity == 0:
             continue  # the visual mesh
         geom.contype = C.BIT_OBJECT
         geom.conaffinity = C.BIT_STATIC | C.BIT_OBJECT | C.BIT_ARM | C.BIT_HAND
-        geom.friction = physics.object_friction
-        geom.condim = physics.condim
-        geom.solref = physics.solref
-        geom.solimp = physics.solimp
     return body.name
 
 
@@ -152,17 +212,33 @@ def ur5e_home_joints(cfg: EnvConfig, iterations: int = 300) -> np.ndarray:
     return (q + math.pi) % (2 * math.pi) - math.pi
 
 
-def build_scene(cfg: EnvConfig, object_xml: Path | None) -> mujoco.MjSpec:
-    """The full task scene as an ``MjSpec`` (compile with ``.compile()``).
+def build_scene(
+    cfg: EnvConfig, scene: Scene, object_xmls: Sequence[Path], robot: bool = True
+) -> mujoco.MjSpec:
+    """The task scene with slot k holding ``object_xmls[k]`` (one per slot), as an ``MjSpec``
+    (compile with ``.compile()``). ``robot=False``: fixtures and objects only (for settling
+    initial states).
 
     Robot ``ur5e``: the arm with the hand on its flange, 6 arm position actuators first, then the
     5 hand actuators. Robot ``floating``: the hand on a free body ``hand_base`` (at the palm
     keypoint) welded to the mocap body ``hand_target``; only the 5 hand actuators.
     """
+    if len(object_xmls) != scene.num_slots:
+        raise ValueError(f"the scene has {scene.num_slots} slots, got {len(object_xmls)} objects")
     spec = mujoco.MjSpec()
-    spec.modelname = "lift"
+    spec.modelname = "grasp" if robot else "settle"
     _options(spec, cfg)
     _add_table(spec, cfg.physics)
+    if "bin" in scene.fixtures:
+        _add_bin(spec, cfg)
+    if robot:
+        _add_robot(spec, cfg)
+    for k, xml in enumerate(object_xmls):
+        add_object(spec, Path(xml), k)
+    return spec
+
+
+def _add_robot(spec: mujoco.MjSpec, cfg: EnvConfig) -> None:
     keypoint, palm_rot = home_hand_pose(cfg)
     if cfg.robot.kind == "ur5e":
         last_link = add_ur5e(spec, cfg.physics, cfg.robot)
@@ -204,16 +280,3 @@ def build_scene(cfg: EnvConfig, object_xml: Path | None) -> mujoco.MjSpec:
         weld.name1 = "hand_base"
         weld.name2 = "hand_target"
         weld.solref = cfg.robot.weld_solref
-    if object_xml is not None:
-        add_object(spec, object_xml, cfg.physics)
-    return spec
-
-
-def build_object_scene(cfg: EnvConfig, object_xml: Path) -> mujoco.MjSpec:
-    """Table and object only: used to drop and settle objects for the initial-state bank."""
-    spec = mujoco.MjSpec()
-    spec.modelname = "drop"
-    _options(spec, cfg)
-    _add_table(spec, cfg.physics)
-    add_object(spec, object_xml, cfg.physics)
-    return spec

@@ -1,0 +1,39 @@
+"""Physics backends: the ``SimBackend`` interface (``backend.py``), MuJoCo C on CPU threads
+(``cpu.py``), and ``make_backend``, the one place that turns a scene and the envs' object
+assignments into the backend ``EnvConfig.backend`` names."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from trainer.assets.scene import Scene, build_scene
+from trainer.config import EnvConfig
+from trainer.errors import TrainerError
+from trainer.sim.backend import SimBackend
+
+
+def make_backend(
+    cfg: EnvConfig,
+    scene: Scene,
+    layouts: Sequence[Sequence[Path]],
+    env_layout: np.ndarray,
+    device: str | torch.device,
+) -> SimBackend:
+    """The backend of ``cfg.backend`` for E envs.
+
+    layouts: L assignments, each the MJCF files filling the scene's K slots in order;
+    env_layout: (E,) int in [0, L), non-decreasing: the layout env i simulates."""
+    env_layout = np.asarray(env_layout, dtype=np.int64)
+    if cfg.backend == "cpu":
+        from trainer.sim.cpu import MujocoCPUBackend
+
+        models = [build_scene(cfg, scene, xmls).compile() for xmls in layouts]
+        return MujocoCPUBackend(models, env_layout, cfg.physics.substeps, cfg.nthread, device)
+    raise TrainerError(f"backend {cfg.backend!r} is not available: use backend = \"cpu\"")
+
+
+__all__ = ["SimBackend", "make_backend"]

@@ -1,14 +1,16 @@
 """The interface between the task and a physics engine that steps many environments at once.
 
-The task (``trainer/env.py``) only talks to a ``SimBackend``: it writes controls and mocap
-targets, steps, and reads ``qpos``/``qvel`` as torch tensors. A GPU backend (MuJoCo Warp) plugs
-in by implementing the same few methods; nothing in the task changes.
+The tasks (``trainer/tasks/``) only talk to a ``SimBackend``: they write controls and mocap
+targets, step, and read ``qpos``/``qvel`` as torch tensors; ``trainer.sim.make_backend`` builds
+the backend that ``EnvConfig.backend`` names from a scene and the envs' assignments. A GPU
+backend (MuJoCo Warp) plugs in by implementing the same few methods; no task changes.
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
 
+import mujoco
 import torch
 
 
@@ -60,6 +62,22 @@ class SimBackend(ABC):
     def unstable(self) -> torch.Tensor:
         """(E,) bool: environments whose state is not finite or has blown up; the task resets
         them."""
+
+    @property
+    @abstractmethod
+    def model(self) -> mujoco.MjModel:
+        """A compiled model of the scene (any assignment): the robot's and the slots' indices,
+        names and kinematic tree are the same in every env's model."""
+
+    @abstractmethod
+    def model_for_env(self, env_id: int) -> mujoco.MjModel:
+        """The MuJoCo model env ``env_id`` simulates (its objects in their slots): for
+        rendering and inspection, not for stepping."""
+
+    @abstractmethod
+    def step_held(self) -> None:
+        """One control period with the controls already held and nothing else (no writes, no
+        reads): the physics-only baseline of ``bench/env_throughput.py``."""
 
     @abstractmethod
     def state_dict(self) -> dict:

@@ -1,7 +1,9 @@
 """CPU backend: MuJoCo's C ``rollout`` on a persistent pool of threads.
 
-Environments are sorted by model (one model per object), so each model's environments form a
-contiguous block of the state array. The blocks are cut into chunks; each pool thread runs
+One model is compiled per distinct assignment of objects to the scene's slots (one per object
+for lift, one per bin layout for bin picking). Environments are sorted by model, so each
+model's environments form a contiguous block of the state array. The blocks are cut into
+chunks; each pool thread runs
 ``mujoco.rollout.rollout`` on a chunk with its own ``MjData`` for that model. ``rollout`` releases
 the GIL, so the threads step in parallel, and no Python code runs per environment or per
 physics step.
@@ -205,9 +207,14 @@ class MujocoCPUBackend(SimBackend):
         self._stalled[:] = state["stalled"]
         self._cache.clear()
 
-    def raw_step(self) -> None:
-        """One control period with the controls already held and nothing else: the baseline of
-        ``bench/env_throughput.py``."""
+    @property
+    def model(self) -> mujoco.MjModel:
+        return self.models[0]
+
+    def model_for_env(self, env_id: int) -> mujoco.MjModel:
+        return self.models[int(self.env_model[env_id])]
+
+    def step_held(self) -> None:
         list(self._pool.map(self._run, self._chunks))
         self._state[:] = self._out[:, -1]
 

@@ -1,38 +1,51 @@
-"""The lifting task as a batched TorchRL environment (one object per environment).
+"""The robot base of every task: UR5e + SIH hand (or the floating hand) grasping a *target*
+object in a scene of object slots, as a batched TorchRL environment.
 
-Reading order: ``__init__`` (assets, backend, specs), ``_reset``, ``_step``, then the small
-task methods ``_apply_action``, ``_get_obs``, ``_get_reward``, ``_get_termination``.
+A task module (``lift.py``, ``bin.py``) subclasses ``GraspTask`` and decides the scene (its
+fixtures and slots), which objects fill the slots in each env (``_layouts``), which slot is the
+target of an episode (``_choose_targets``) and what else the policy sees (``_get_obs``). The
+base owns everything the tasks share: the backend (``trainer.sim.make_backend``), the settled
+initial states, the action → Jacobian-transpose arm commands, the paper's reward and success
+applied to the target, resets, and checkpoints.
 
-Output keys (batch E):
+Reading order: ``__init__``, ``_reset`` / ``_reset_envs``, ``_step``, ``_task_outputs_eager``
+and the task hooks ``_get_obs``, ``_get_reward``, ``_get_termination``.
+
+Output keys (batch E; see ``trainer.tasks.observation_spec``):
 - ``proprio`` (E, 20): palm keypoint position (3, m), palm orientation (6-d), hand joints (11, rad)
-- ``object``: the representation (``trainer.representations``), (E, D) or (E, N, 3)
+- ``object``: the target's representation (``trainer.representations``), (E, D) or (E, N, 3)
+- ``context`` (E, K-1, 10) and ``context_mask`` (E, K-1): the other objects' boxes (bin task
+  with ``context = "bbox"`` only)
 - ``reward`` (E, 1) and its terms ``reward_lift``, ``reward_success``, ``reward_contact``
-- ``success`` (E, 1) bool, ``lift_height`` (E, 1) m, ``object_id`` (E, 1) long,
-  ``unstable`` (E, 1) bool: the simulation blew up and the episode was cut (never a crash)
-- ``done`` / ``terminated`` (success or object off the table) / ``truncated`` (300 actions)
+- ``success`` (E, 1) bool, ``lift_height`` (E, 1) m (the target's), ``object_id`` (E, 1) long
+  (the target's object id), ``unstable`` (E, 1) bool: the simulation blew up and the episode
+  was cut (never a crash)
+- ``done`` / ``terminated`` (success or target off the table) / ``truncated`` (max_steps)
+
+Per-env task state lives in one ``TensorDict`` (``self.state``): resets write its masked rows,
+checkpoints clone it, so no task keeps state anywhere else.
 """
 
 from __future__ import annotations
 
 import warnings
+from typing import ClassVar
 
 import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from geomprep.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix, rotation_6d
 from trainer import constants as C
-from trainer.assets.scene import build_scene, home_hand_pose, ur5e_home_joints
-from trainer.config import ACTION_DIM, EnvConfig
+from trainer.assets.scene import Scene, home_hand_pose, slot_qpos_addresses, ur5e_home_joints
+from trainer.config import EnvConfig
 from trainer.init_states import load_or_build_bank
 from trainer.kinematics import SiteKinematics, jacobian_transpose_step
-from trainer.objects import load_objects, resolve_names
-from trainer.representations import object_representation, representation_shape
-from trainer.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix, rotation_6d
-from trainer.sim.cpu import MujocoCPUBackend
-
-PROPRIO_DIM = 20
+from trainer.objects import ObjectSet, load_objects, resolve_names
+from trainer.representations import object_representation
+from trainer.sim import make_backend
+from trainer.tasks.spec import observation_spec
 
 
 def _compiled_or_eager(function):  # noqa: ANN001, ANN202
@@ -56,8 +69,10 @@ def _compiled_or_eager(function):  # noqa: ANN001, ANN202
     return call
 
 
-class GraspEnv(EnvBase):
-    """Lift one object per environment with the UR5e + SIH hand (or the floating hand)."""
+class GraspTask(EnvBase):
+    """Grasp the target object of every env with the UR5e + SIH hand (or the floating hand)."""
+
+    name: ClassVar[str] = ""
 
     def __init__(self, cfg: EnvConfig, seed: int = 0) -> None:
         super().__init__(device=torch.device(cfg.device), batch_size=torch.Size([cfg.num_envs]))
@@ -66,29 +81,31 @@ class GraspEnv(EnvBase):
         names = resolve_names(cfg.objects, cfg.data_dir)
         need_sdf = cfg.representation == "sdf" or cfg.reward.kind == "sdf"
         sdf_dtype = torch.float16 if cfg.sdf_dtype == "float16" else torch.float32
-        self.objects = load_objects(names, cfg.data_dir, need_sdf, self.device, sdf_dtype)
-        # Environment i simulates object env_object[i]; envs are grouped by object so the CPU
-        # backend steps each object's model on a contiguous block.
-        rng = np.random.default_rng(seed)
-        if len(names) <= E:
-            env_object = np.arange(E) % len(names)
-        else:
-            env_object = rng.choice(len(names), size=E, replace=False)
-        env_object = np.sort(env_object)
-        used = np.unique(env_object)
-        models = [build_scene(cfg, self.objects.xml_paths[k]).compile() for k in used]
-        self.model = models[0]
-        self.backend = MujocoCPUBackend(
-            models, np.searchsorted(used, env_object), cfg.physics.substeps, cfg.nthread,
-            self.device,
+        self.objects: ObjectSet = load_objects(
+            names, cfg.data_dir, need_sdf, self.device, sdf_dtype
         )
-        self.env_object = torch.as_tensor(env_object, device=self.device)
-        banks = np.zeros((len(names), cfg.init.bank_size, 7))
-        for k in used:
-            banks[k] = load_or_build_bank(
-                cfg, names[k], self.objects.xml_paths[k], self.objects.mjcf_keys[k]
+        rng = np.random.default_rng(seed)
+        self.scene, layouts, env_layout = self._layouts(len(names), rng)
+        K = self.scene.num_slots
+        # Layout l fills slot k with object layouts[l, k]; env i simulates layout env_layout[i]
+        # (sorted, so that the CPU backend steps each layout's model on a contiguous block).
+        xmls = [[self.objects.xml_paths[k] for k in row] for row in layouts]
+        self.backend = make_backend(cfg, self.scene, xmls, env_layout, self.device)
+        self.model = self.backend.model
+        self.layouts = torch.as_tensor(layouts, device=self.device)
+        self.env_layout = torch.as_tensor(env_layout, device=self.device)
+        self.assignment = self.layouts[self.env_layout]  # (E, K) object id in each slot
+        bank_size = self._bank_size()
+        banks = np.stack([
+            load_or_build_bank(
+                cfg, self.scene, [names[k] for k in row], xmls[i],
+                [self.objects.mjcf_keys[k] for k in row], bank_size,
             )
-        self.banks = torch.as_tensor(banks, dtype=torch.float32, device=self.device)
+            for i, row in enumerate(layouts)
+        ])
+        self.banks = torch.as_tensor(banks, dtype=torch.float32, device=self.device)  # (L,B,K,7)
+        address = torch.as_tensor(slot_qpos_addresses(self.model, K), device=self.device)
+        self.slot_qpos = address[:, None] + torch.arange(7, device=self.device)  # (K, 7)
 
         self._index_model(self.model)
         self.kinematics = SiteKinematics(self.model, ["palm", *C.FINGERTIPS], self.device)
@@ -97,12 +114,19 @@ class GraspEnv(EnvBase):
 
         self._rng = torch.Generator(device=self.device)
         self._rng.manual_seed(seed)
-        self.step_count = torch.zeros(E, dtype=torch.long, device=self.device)
-        self.start_height = torch.zeros(E, device=self.device)
-        self.target_pos = torch.zeros(E, 3, device=self.device)
-        self.target_rot = torch.eye(3, device=self.device).repeat(E, 1, 1)
-        self.ctrl = self.home_ctrl.repeat(E, 1)
-        self.palm_pos = self.home_keypoint.repeat(E, 1)
+        self.state = TensorDict(
+            {
+                "step_count": torch.zeros(E, dtype=torch.long),
+                "start_height": torch.zeros(E),
+                "target_slot": torch.zeros(E, dtype=torch.long),
+                "target_pos": self.home_keypoint.repeat(E, 1),
+                "target_rot": self.home_rot.repeat(E, 1, 1),
+                "ctrl": self.home_ctrl.repeat(E, 1),
+                "palm_pos": self.home_keypoint.repeat(E, 1),
+            },
+            batch_size=[E],
+            device=self.device,
+        )
         self.h_bar = torch.tensor(cfg.reward.h_bar, device=self.device)
         self._pending_restore: dict | None = None
         self._task_outputs = self._task_outputs_eager
@@ -115,11 +139,34 @@ class GraspEnv(EnvBase):
             torch._dynamo.config.recompile_limit = max(torch._dynamo.config.recompile_limit, 64)
             self._task_outputs = _compiled_or_eager(self._task_outputs_eager)
             self._commands = _compiled_or_eager(self._commands_eager)
-        self._make_specs()
+        spec = observation_spec(cfg, E, self.device)
+        self.observation_spec = spec["observation"]
+        self.action_spec = spec["action"]
+        self.reward_spec = spec["reward"]
+        self.done_spec = spec["done"]
+
+    # --- task hooks --------------------------------------------------------------------------
+    def _layouts(
+        self, num_objects: int, rng: np.random.Generator
+    ) -> tuple[Scene, np.ndarray, np.ndarray]:
+        """(scene, layouts (L, K) object ids per slot, env_layout (E,) non-decreasing)."""
+        raise NotImplementedError
+
+    def _bank_size(self) -> int:
+        """Settled states per layout."""
+        raise NotImplementedError
+
+    def _choose_targets(self, n: int) -> torch.Tensor:
+        """(n,) target slot of each new episode."""
+        raise NotImplementedError
+
+    def _reset_yaw(self, n: int) -> torch.Tensor:
+        """(n,) rotation (rad) of a settled state about the vertical axis through the origin."""
+        raise NotImplementedError
 
     # --- setup ------------------------------------------------------------------------------
     def _index_model(self, model) -> None:  # noqa: ANN001
-        """qpos / actuator indices of the robot and the object (same in every model)."""
+        """qpos / actuator indices of the robot (the same in every env's model)."""
         joint = lambda name: int(model.joint(name).qposadr[0])  # noqa: E731
         self.hand_qpos = torch.tensor([joint(n) for n in C.SIH_JOINTS], device=self.device)
         self.hand_act = torch.tensor(
@@ -127,8 +174,6 @@ class GraspEnv(EnvBase):
         )
         self.hand_open = torch.tensor([a[2] for a in C.SIH_ACTUATORS], device=self.device)
         self.hand_closed = torch.tensor([a[3] for a in C.SIH_ACTUATORS], device=self.device)
-        object_joint = model.body_jntadr[model.nbody - 1]
-        self.obj_qpos = int(model.jnt_qposadr[object_joint])
         self.floating = self.cfg.robot.kind == "floating"
         if self.floating:
             self.base_qpos = joint("hand_free")
@@ -159,30 +204,6 @@ class GraspEnv(EnvBase):
         self.home_qpos = qpos
         self.home_ctrl = ctrl
 
-    def _make_specs(self) -> None:
-        E = self.cfg.num_envs
-        shape = (E, *representation_shape(self.cfg.representation))
-        flag = lambda: Categorical(2, shape=(E, 1), dtype=torch.bool, device=self.device)  # noqa: E731
-        scalar = lambda: Unbounded(shape=(E, 1), device=self.device)  # noqa: E731
-        self.observation_spec = Composite(
-            proprio=Unbounded(shape=(E, PROPRIO_DIM), device=self.device),
-            object=Unbounded(shape=shape, device=self.device),
-            success=flag(),
-            unstable=flag(),
-            lift_height=scalar(),
-            reward_lift=scalar(),
-            reward_success=scalar(),
-            reward_contact=scalar(),
-            object_id=Unbounded(shape=(E, 1), dtype=torch.long, device=self.device),
-            shape=(E,),
-            device=self.device,
-        )
-        self.action_spec = Bounded(-1.0, 1.0, shape=(E, ACTION_DIM), device=self.device)
-        self.reward_spec = Unbounded(shape=(E, 1), device=self.device)
-        self.done_spec = Composite(
-            done=flag(), terminated=flag(), truncated=flag(), shape=(E,), device=self.device
-        )
-
     def set_lift_target(self, h_bar: float) -> None:
         """Lift height (m) that earns the success bonus and ends an episode: ``cfg.reward.h_bar``
         unless a training curriculum lowers it."""
@@ -190,6 +211,27 @@ class GraspEnv(EnvBase):
 
     def _set_seed(self, seed: int | None) -> None:
         self._rng.manual_seed(0 if seed is None else seed)
+
+    @property
+    def num_envs(self) -> int:
+        return self.cfg.num_envs
+
+    # --- what the target is --------------------------------------------------------------------
+    def slot_poses(self, qpos: torch.Tensor) -> torch.Tensor:
+        """(E, K, 7) every slot's object pose: position (m) and quaternion (w, x, y, z)."""
+        return qpos[:, self.slot_qpos]
+
+    def target_objects(self, target_slot: torch.Tensor | None = None) -> torch.Tensor:
+        """(E,) object id of each env's target."""
+        slot = self.state["target_slot"] if target_slot is None else target_slot
+        return self.assignment.gather(1, slot[:, None])[:, 0]
+
+    def target_pose(self, qpos: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """The target's position (E, 3) and quaternion (E, 4) in the world."""
+        poses = self.slot_poses(self.backend.qpos if qpos is None else qpos)
+        index = self.state["target_slot"][:, None, None].expand(-1, 1, 7)
+        pose = poses.gather(1, index)[:, 0]
+        return pose[:, :3], pose[:, 3:]
 
     # --- TorchRL interface -------------------------------------------------------------------
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:  # noqa: ANN003
@@ -208,38 +250,45 @@ class GraspEnv(EnvBase):
         return self._observe(reset=True)
 
     def _reset_envs(self, ids: torch.Tensor) -> None:
-        """Put the robot home and an object from its settled bank (with a random yaw)."""
+        """Put the robot home and the objects in a settled state of the env's layout, turned
+        about the vertical axis; choose the episode's target."""
         n = len(ids)
-        pick = torch.randint(self.cfg.init.bank_size, (n,), generator=self._rng, device=self.device)
-        pose = self.banks[self.env_object[ids], pick]
-        yaw = (torch.rand(n, generator=self._rng, device=self.device) * 2 - 1) * torch.pi
+        pick = torch.randint(self.banks.shape[1], (n,), generator=self._rng, device=self.device)
+        pose = self.banks[self.env_layout[ids], pick]  # (n, K, 7)
+        yaw = self._reset_yaw(n)
         spin = axis_angle_to_matrix(torch.stack([torch.zeros_like(yaw)] * 2 + [yaw], -1))
-        pos = pose[:, :3].clone()
-        pos[:, :2] = (spin[:, :2, :2] @ pos[:, :2, None])[..., 0]
-        quat = matrix_to_quat(spin @ quat_to_matrix(pose[:, 3:]))
+        pos = pose[..., :3].clone()
+        pos[..., :2] = (spin[:, None, :2, :2] @ pos[..., :2, None])[..., 0]
+        quat = matrix_to_quat(spin[:, None] @ quat_to_matrix(pose[..., 3:]))
         qpos = self.home_qpos.repeat(n, 1)
-        qpos[:, self.obj_qpos : self.obj_qpos + 3] = pos
-        qpos[:, self.obj_qpos + 3 : self.obj_qpos + 7] = quat
-        self.ctrl[ids] = self.home_ctrl
-        mocap = self._mocap(n, self.home_keypoint.expand(n, 3), self.home_rot.expand(n, 3, 3))
-        self.backend.set_state(
-            ids, qpos, torch.zeros(n, self.backend.nv, device=self.device), self.ctrl[ids], *mocap
+        qpos[:, self.slot_qpos] = torch.cat([pos, quat], dim=-1)
+        target_slot = self._choose_targets(n)
+        fresh = TensorDict(
+            {
+                "step_count": torch.zeros(n, dtype=torch.long, device=self.device),
+                "start_height": pos.gather(1, target_slot[:, None, None].expand(-1, 1, 3))[:, 0, 2],
+                "target_slot": target_slot,
+                "target_pos": self.home_keypoint.expand(n, 3),
+                "target_rot": self.home_rot.expand(n, 3, 3),
+                "ctrl": self.home_ctrl.expand(n, -1),
+                "palm_pos": self.home_keypoint.expand(n, 3),
+            },
+            batch_size=[n],
+            device=self.device,
         )
-        self.step_count[ids] = 0
-        self.start_height[ids] = pos[:, 2]
-        self.target_pos[ids] = self.home_keypoint
-        self.target_rot[ids] = self.home_rot
+        self.state[ids] = fresh
+        mocap = self._mocap(n, fresh["target_pos"], fresh["target_rot"])
+        self.backend.set_state(
+            ids, qpos, torch.zeros(n, self.backend.nv, device=self.device), fresh["ctrl"], *mocap
+        )
 
     # --- checkpoints -------------------------------------------------------------------------
     def snapshot(self) -> dict:
-        """The whole state of every env (simulation, commands, counters, random generator): with
+        """The whole state of every env (simulation, task state, random generator): with
         ``restore_on_next_reset`` a resumed run continues exactly where this one stood."""
         return {
             "backend": self.backend.state_dict(),
-            "tensors": {
-                name: getattr(self, name).clone()
-                for name in ("step_count", "start_height", "target_pos", "target_rot", "ctrl")
-            },
+            "state": self.state.clone().to("cpu"),
             "rng": self._rng.get_state(),
         }
 
@@ -250,8 +299,10 @@ class GraspEnv(EnvBase):
 
     def _restore(self, snapshot: dict) -> None:
         self.backend.load_state_dict(snapshot["backend"])
-        for name, value in snapshot["tensors"].items():
-            setattr(self, name, value.clone().to(self.device))
+        state = snapshot["state"]
+        if set(state.keys()) != set(self.state.keys()) or state.batch_size != self.state.batch_size:  # noqa: E501
+            raise ValueError("the saved task state is for another task or number of envs")
+        self.state.update_(state.to(self.device))
         self._rng.set_state(snapshot["rng"])
 
     def _mocap(
@@ -263,23 +314,25 @@ class GraspEnv(EnvBase):
 
     def mocap_targets(self) -> tuple[torch.Tensor | None, torch.Tensor | None]:
         """The floating hand's current mocap target: (E, 1, 3) and (E, 1, 4), or Nones."""
-        return self._mocap(self.num_envs, self.target_pos, self.target_rot)
+        return self._mocap(self.num_envs, self.state["target_pos"], self.state["target_rot"])
+
+    def hold(self) -> None:
+        """One control period holding the current commands, with nothing else updated (videos
+        keep rolling after the episodes end)."""
+        self.backend.step(self.state["ctrl"], *self.mocap_targets())
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get("action").clamp(-1.0, 1.0)
-        mocap = self._apply_action(action)
-        self.backend.step(self.ctrl, *mocap)
-        self.step_count += 1
+        s = self.state
+        target_pos, target_rot, ctrl = self._commands(
+            action, s["palm_pos"], s["target_pos"], s["target_rot"], s["ctrl"], self.backend.qpos
+        )
+        s["target_pos"], s["target_rot"], s["ctrl"] = target_pos, target_rot, ctrl
+        self.backend.step(ctrl, *self._mocap(self.num_envs, target_pos, target_rot))
+        s["step_count"] += 1
         return self._observe(reset=False)
 
-    # --- task --------------------------------------------------------------------------------
-    def _apply_action(self, action: torch.Tensor) -> tuple[torch.Tensor | None, torch.Tensor | None]:  # noqa: E501
-        """Move the commanded hand pose by the action and turn it into actuator targets."""
-        self.target_pos, self.target_rot, self.ctrl = self._commands(
-            action, self.palm_pos, self.target_pos, self.target_rot, self.ctrl, self.backend.qpos
-        )
-        return self._mocap(self.num_envs, self.target_pos, self.target_rot)
-
+    # --- the robot's commands ----------------------------------------------------------------
     def _commands_eager(
         self,
         action: torch.Tensor,
@@ -312,16 +365,14 @@ class GraspEnv(EnvBase):
             )
         return target_pos, target_rot, ctrl
 
-    @property
-    def num_envs(self) -> int:
-        return self.cfg.num_envs
-
+    # --- observation, reward, termination ----------------------------------------------------
     def _observe(self, reset: bool) -> TensorDictBase:
         qpos = self.backend.qpos
+        s = self.state
         obs, terms, flags, palm_pos = self._task_outputs(
-            qpos, self.start_height, self.step_count, self.h_bar
+            qpos, s["start_height"], s["step_count"], s["target_slot"], self.h_bar
         )
-        self.palm_pos = palm_pos
+        s["palm_pos"] = palm_pos
         lift = terms.pop("lift_height")
         success, terminated, truncated = flags
         unstable = self.backend.unstable()
@@ -338,7 +389,7 @@ class GraspEnv(EnvBase):
                 "success": success[:, None],
                 "unstable": unstable[:, None],
                 "lift_height": lift[:, None],
-                "object_id": self.env_object[:, None],
+                "object_id": self.target_objects()[:, None],
                 "terminated": terminated[:, None],
                 "truncated": truncated[:, None],
                 "done": (terminated | truncated)[:, None],
@@ -355,6 +406,7 @@ class GraspEnv(EnvBase):
         qpos: torch.Tensor,
         start_height: torch.Tensor,
         step_count: torch.Tensor,
+        target_slot: torch.Tensor,
         h_bar: torch.Tensor,
     ) -> tuple[dict, dict, tuple, torch.Tensor]:
         """Everything the task computes from the simulated state, as a pure tensor function
@@ -362,16 +414,22 @@ class GraspEnv(EnvBase):
         their sum ``reward`` and ``lift_height``, (success, terminated, truncated), palm
         position (E, 3)). h_bar: the lift target (0-d tensor, m)."""
         poses = self.kinematics.forward(qpos)
-        obj_pos = qpos[:, self.obj_qpos : self.obj_qpos + 3]
-        obj_quat = qpos[:, self.obj_qpos + 3 : self.obj_qpos + 7]
+        slots = self.slot_poses(qpos)  # (E, K, 7)
+        target = slots.gather(1, target_slot[:, None, None].expand(-1, 1, 7))[:, 0]
+        target_id = self.assignment.gather(1, target_slot[:, None])[:, 0]
+        obj_pos, obj_quat = target[:, :3], target[:, 3:]
         tips = poses.site_pos[:, 1:]
         palm_pos, palm_rot = poses.site_pos[:, 0], poses.site_rot[:, 0]
-        obs = self._get_obs(qpos, palm_pos, palm_rot, obj_pos, obj_quat, tips)
+        obs = self._get_obs(qpos, palm_pos, palm_rot, target_id, obj_pos, obj_quat, tips, slots,
+                            target_slot)
         # A blown-up env (flagged unstable, truncated, reset next) must not feed NaN to the
         # networks or to the value targets.
-        obs = {k: torch.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0) for k, v in obs.items()}
+        obs = {
+            k: v if v.dtype == torch.bool else torch.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0)
+            for k, v in obs.items()
+        }
         lift = obj_pos[:, 2] - start_height
-        terms = self._get_reward(lift, h_bar, tips, obj_pos, obj_quat, obs)
+        terms = self._get_reward(lift, h_bar, tips, target_id, obj_pos, obj_quat, obs)
         reward = terms["lift"] + terms["success"] + terms["contact"]
         terms["reward"] = torch.nan_to_num(reward, nan=0.0, posinf=0.0, neginf=0.0)
         terms["lift_height"] = lift
@@ -383,13 +441,17 @@ class GraspEnv(EnvBase):
         qpos: torch.Tensor,
         palm_pos: torch.Tensor,
         palm_rot: torch.Tensor,
+        target_id: torch.Tensor,
         obj_pos: torch.Tensor,
         obj_quat: torch.Tensor,
         tips: torch.Tensor,
+        slots: torch.Tensor,
+        target_slot: torch.Tensor,
     ) -> dict[str, torch.Tensor]:
+        """The robot's proprioception and the target's representation; tasks add to it."""
         proprio = torch.cat([palm_pos, rotation_6d(palm_rot), qpos[:, self.hand_qpos]], dim=-1)
         obj = object_representation(
-            self.cfg.representation, self.objects, self.env_object, obj_pos, obj_quat, tips
+            self.cfg.representation, self.objects, target_id, obj_pos, obj_quat, tips
         )
         return {"proprio": proprio, "object": obj}
 
@@ -398,11 +460,12 @@ class GraspEnv(EnvBase):
         lift: torch.Tensor,
         h_bar: torch.Tensor,
         tips: torch.Tensor,
+        target_id: torch.Tensor,
         obj_pos: torch.Tensor,
         obj_quat: torch.Tensor,
         obs: dict[str, torch.Tensor],
     ) -> dict[str, torch.Tensor]:
-        """The paper's reward, term by term (E,) each."""
+        """The paper's reward on the target, term by term (E,) each."""
         r = self.cfg.reward
         terms = {
             "lift": r.c1 / ((h_bar - lift).abs() + r.eps_h),
@@ -415,7 +478,7 @@ class GraspEnv(EnvBase):
             if self.cfg.representation == "sdf":
                 distance = obs["object"]
             else:
-                distance = self.objects.sdf.query(tips, obj_pos, obj_quat, self.env_object)
+                distance = self.objects.sdf.query(tips, obj_pos, obj_quat, target_id)
             # A fingertip pressed into the surface is in contact: its distance is 0, not < 0.
             total = distance.clamp_min(0.0).sum(-1)
         else:
@@ -427,8 +490,9 @@ class GraspEnv(EnvBase):
         self, lift: torch.Tensor, h_bar: torch.Tensor, obj_pos: torch.Tensor,
         step_count: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(success, terminated, truncated), each (E,) bool. A blown-up simulation also
-        truncates; ``_observe`` adds that from the backend's ``unstable``."""
+        """(success, terminated, truncated), each (E,) bool: success is the target lifted by
+        h_bar. A blown-up simulation also truncates; ``_observe`` adds that from the backend's
+        ``unstable``."""
         success = lift >= h_bar
         fell = obj_pos[:, 2] < self.cfg.fall_height
         return success, success | fell, step_count >= self.cfg.max_steps
