@@ -64,8 +64,12 @@ def _write_run(
     seconds: float,
     rates: list[float],
     per_object: dict[str, tuple[int, int]] | None,
+    task: dict | None = None,
+    name: str | None = None,
 ) -> Path:
-    path = root / f"{representation}_s{seed}"
+    """A run directory; ``task``: env fields of the task (``{"task": "bin", ...}``), none for a
+    config from before the tasks (no ``env.task``: a lift run)."""
+    path = root / (name or f"{representation}_s{seed}")
     path.mkdir(parents=True)
     config = {
         "env": {
@@ -74,6 +78,7 @@ def _write_run(
             "robot": {"kind": "ur5e"},
             "objects": "builtin",
             "num_envs": 64,
+            **(task or {}),
         },
         "ppo": {"lr": 3e-4},
         "run": {"seed": seed, "total_steps": 1_000_000},
@@ -106,6 +111,9 @@ def runs(run_dirs: list[Path]) -> list[report.Run]:
 def test_load_run(runs: list[report.Run]) -> None:
     run = runs[1]
     assert (run.representation, run.reward, run.robot, run.seed) == ("sq", "sdf", "ur5e", 1)
+    # config.json written before the tasks (no env.task): a lift run.
+    assert (run.task, run.bin_objects, run.context) == ("lift", None, "none")
+    assert run.group == ("lift", "sq", "sdf", "ur5e") and run.label == "sq"
     assert run.env_steps[-1] == 1_000_000 and run.wall_time_s[-1] == 340
     assert np.isnan(run.success_rate[:2]).all() and run.success_rate[5] == 0.9
     assert run.per_object == {"cube": (10, 9), "mug": (10, 6), "plate": (10, 3)}
@@ -138,19 +146,19 @@ def test_final_success_prefers_eval(runs: list[report.Run]) -> None:
 def test_summary_table(runs: list[report.Run]) -> None:
     lines = report.summary_table(runs).splitlines()
     assert lines[0] == (
-        "| representation | reward | robot | seeds | final success | steps to 90 % (M) "
+        "| task | representation | reward | robot | seeds | final success | steps to 90 % (M) "
         "| minutes to 90 % | steps to 95 % (M) | minutes to 95 % |"
     )
     # final: eval overall 23/30, 18/30, 21/30 -> mean 0.6889, std 0.0685
     # 90 %: 0.5, 0.6, 0.6 M -> 0.5667 ± 0.0471; 2.5, 3.4, 3.6 min -> 3.1667 ± 0.4784
     # 95 %: 0.7, 0.8 M -> 0.75 ± 0.05; 3.5, 4.5333 min -> 4.0167 ± 0.5167 (2 of 3 seeds)
     assert lines[2] == (
-        "| sq | sdf | ur5e | 3 | 0.69 ± 0.07 | 0.57 ± 0.05 | 3.2 ± 0.5 "
+        "| lift | sq | sdf | ur5e | 3 | 0.69 ± 0.07 | 0.57 ± 0.05 | 3.2 ± 0.5 "
         "| 0.75 ± 0.05 (2/3 seeds) | 4.0 ± 0.5 (2/3 seeds) |"
     )
     # final: 16/29 = 0.5517 (eval) and 0.6 (training tail) -> 0.5759 ± 0.0241
     assert lines[3] == (
-        "| com | sdf | ur5e | 2 | 0.58 ± 0.02 | 0.90 ± 0.00 (1/2 seeds) "
+        "| lift | com | sdf | ur5e | 2 | 0.58 ± 0.02 | 0.90 ± 0.00 (1/2 seeds) "
         "| 4.5 ± 0.0 (1/2 seeds) | — | — |"
     )
     assert len(lines) == 4
@@ -182,9 +190,53 @@ def test_group_labels_name_reward_and_robot_when_they_differ(runs: list[report.R
     )
     labels = report.group_labels([*runs, other])
     assert set(labels.values()) == {"sq/sdf/ur5e", "com/sdf/ur5e", "sq/none/ur5e"}
-    assert report.resolve_group([*runs, other], "com") == ("com", "sdf", "ur5e")
+    assert report.resolve_group([*runs, other], "com") == ("lift", "com", "sdf", "ur5e")
     with pytest.raises(TrainerError, match="several groups"):
         report.resolve_group([*runs, other], "sq")
+
+
+def test_bin_runs_are_their_own_groups(run_dirs: list[Path], tmp_path: Path) -> None:
+    """Task, bin size and context split the groups: a bin run is never averaged with a lift
+    run of the same representation; labels bin5-bbox, bin5-bbox+ctx."""
+    root = tmp_path / "runs"
+    bin5 = {"task": "bin", "bin": {"num_objects": 5}, "context": "none"}
+    ctx = {"task": "bin", "bin": {"num_objects": 5}, "context": "bbox"}
+    bin10 = {"task": "bin", "bin": {"num_objects": 10}}
+    rates = [0.1, 0.5, 0.92]
+    extra = [
+        _write_run(root, "sq", 0, 30, rates, {"cube": (10, 4)}, bin5, "bin5-sq_s0"),
+        _write_run(root, "bbox", 0, 30, rates, {"cube": (12, 6)}, bin5, "bin5-bbox_s0"),
+        _write_run(root, "bbox", 1, 30, rates, None, bin5, "bin5-bbox_s1"),
+        _write_run(root, "bbox", 0, 30, rates, {"cube": (10, 9)}, ctx, "bin5-bbox-ctx_s0"),
+        _write_run(root, "bbox", 0, 30, rates, None, bin10, "bin10-bbox_s0"),
+    ]
+    runs = [report.load_run(d) for d in [*run_dirs, *extra]]
+    assert (runs[-2].task, runs[-2].bin_objects, runs[-2].context) == ("bin", 5, "bbox")
+    assert runs[-2].label == "bin5-bbox+ctx" and runs[-1].label == "bin10-bbox"
+    groups = report.group_runs(runs)
+    assert len(groups) == 6 and len(groups[("bin5", "bbox", "sdf", "ur5e")]) == 2
+    assert list(report.group_labels(runs).values()) == [
+        "sq", "com", "bin5-sq", "bin5-bbox", "bin5-bbox+ctx", "bin10-bbox"
+    ]
+    lines = report.summary_table(runs).splitlines()
+    assert [line.split(" | ")[:5] for line in lines[4:]] == [
+        ["| bin5", "sq", "sdf", "ur5e", "1"],
+        ["| bin5", "bbox", "sdf", "ur5e", "2"],
+        ["| bin5", "bbox+ctx", "sdf", "ur5e", "1"],
+        ["| bin10", "bbox", "sdf", "ur5e", "1"],
+    ]
+    header = report.per_object_table(runs).splitlines()[0]
+    assert header == "| object | sq | com | bin5-sq | bin5-bbox | bin5-bbox+ctx |"
+    assert report.resolve_group(runs, "sq") == ("lift", "sq", "sdf", "ur5e")
+    assert report.resolve_group(runs, "bin5-bbox+ctx") == ("bin5", "bbox+ctx", "sdf", "ur5e")
+    with pytest.raises(TrainerError, match="several groups"):
+        report.resolve_group(runs, "bbox")  # bin5-bbox and bin10-bbox
+    gains = report.success_gain(runs, "bin5-bbox", "bin5-bbox+ctx")
+    assert gains == [("cube", pytest.approx(0.9 - 0.5))]
+    report.write_report([*run_dirs, *extra], tmp_path / "out")
+    text = (tmp_path / "out" / "report.md").read_text()
+    assert "6 groups" in text and "| bin5 | bbox+ctx | sdf | ur5e | 1 |" in text
+    assert "): bin5/bbox+ctx/sdf/ur5e, seed 0" in text
 
 
 def test_success_gain(runs: list[report.Run]) -> None:
@@ -218,7 +270,7 @@ def test_write_report(run_dirs: list[Path], tmp_path: Path) -> None:
             with Image.open(path) as image:
                 assert image.format == "PNG" and image.width > 0 and image.height > 0
     text = (out / "report.md").read_text()
-    assert "| sq | sdf | ur5e | 3 | 0.69 ± 0.07 |" in text
+    assert "| lift | sq | sdf | ur5e | 3 | 0.69 ± 0.07 |" in text
     assert "| mean | 0.69 | 0.54 |" in text
     assert "(gain_sq_over_com.png)" in text and "(success_vs_time.png)" in text
     assert not list(out.glob(".*tmp*"))

@@ -1,8 +1,10 @@
-"""The ``trainer`` command line without training: it starts fast (no torch at import), and bad
-options and paths are one ``error:`` line with exit status 1. (Runs: tests/test_ppo.py.)"""
+"""The ``trainer`` command line: it starts fast (no torch at import), bad options and paths are
+one ``error:`` line with exit status 1, and eval / play / report know the task (lift or bin) of
+a run, on one-iteration runs. (Training itself: tests/test_ppo.py.)"""
 
 from __future__ import annotations
 
+import csv
 import json
 import subprocess
 import sys
@@ -12,6 +14,7 @@ import pytest
 
 import trainer.cli
 import trainer.ppo
+from geomprep.config import Config
 from trainer.config import config_dict, load_train_config
 
 
@@ -31,13 +34,20 @@ def test_importing_the_cli_does_not_import_torch() -> None:
 
 def invoke(argv: list[str], monkeypatch: pytest.MonkeyPatch, capsys) -> tuple[int, str]:  # noqa: ANN001
     """Run the real entry point (as the installed ``trainer`` script does): exit code, stderr."""
+    code, _, err = invoke_all(argv, monkeypatch, capsys)
+    return code, err
+
+
+def invoke_all(argv: list[str], monkeypatch: pytest.MonkeyPatch, capsys) -> tuple[int, str, str]:  # noqa: ANN001, E501
+    """Like ``invoke``: exit code, stdout, stderr (stripped)."""
     monkeypatch.setattr(sys, "argv", ["trainer", *argv])
     try:
         trainer.cli.main()
         code = 0
     except SystemExit as exc:
         code = int(exc.code or 0)
-    return code, capsys.readouterr().err.strip()
+    out = capsys.readouterr()
+    return code, out.out.strip(), out.err.strip()
 
 
 @pytest.mark.parametrize(
@@ -47,6 +57,12 @@ def invoke(argv: list[str], monkeypatch: pytest.MonkeyPatch, capsys) -> tuple[in
         (["run", "--steps", "-5"], "error: --steps -5: must be >= 1"),
         (["run", "--seed", "-1"], "error: --seed -1: must be >= 0"),
         (["run", "--num-envs", "0"], "error: --num-envs 0: must be >= 1"),
+        (["run", "--bin-objects", "0"], "error: --bin-objects 0: must be >= 1"),
+        (["run", "--task", "bin", "--bin-objects", "-3"], "error: --bin-objects -3: must be >= 1"),
+        # The lift task has no other objects to see.
+        (["run", "--context", "bbox"], "error: context = 'bbox': only the bin task has other "
+         "objects to see; use --task bin or drop --context"),
+        (["run", "--task", "lift", "--context", "bbox"], "error: context = 'bbox': only the bin"),
         (["run", "--device", "bogus"], "error: --device bogus: not a torch device: use cpu or"),
         (["run", "--resume", "nowhere", "--num-envs", "4"],
          "error: --num-envs cannot change a resumed run"),
@@ -55,6 +71,7 @@ def invoke(argv: list[str], monkeypatch: pytest.MonkeyPatch, capsys) -> tuple[in
         (["run", "--resume", "nowhere"], "error: nowhere: no such run directory"),
         (["eval", "nowhere"], "error: nowhere: no such run directory"),
         (["eval", ".", "--episodes-per-object", "0"], "error: --episodes-per-object 0: must be"),
+        (["eval", ".", "--max-rounds", "0"], "error: --max-rounds 0: must be >= 1"),
         (["eval", "."], "error: . is not a run directory (no config.json)"),
         (["play", "nowhere", "--object", "x"], "error: nowhere: no such run directory"),
         (["play", ".", "--object", "x", "--episodes", "0"], "error: --episodes 0: must be >= 1"),
@@ -68,6 +85,13 @@ def test_bad_input_is_one_line(
     monkeypatch.chdir(tmp_path)
     code, err = invoke(argv, monkeypatch, capsys)
     assert code == 1 and err.startswith(expected) and "\n" not in err, err
+
+
+def test_unknown_task_is_clicks_usage_error(monkeypatch: pytest.MonkeyPatch, capsys) -> None:  # noqa: ANN001
+    code, err = invoke(["run", "--task", "stack"], monkeypatch, capsys)
+    assert code == 2 and err.endswith(
+        "Error: Invalid value for '--task': 'stack' is not one of 'lift', 'bin'."
+    ), err
 
 
 def test_cuda_without_a_gpu_is_one_line(monkeypatch: pytest.MonkeyPatch, capsys) -> None:  # noqa: ANN001
@@ -109,3 +133,176 @@ def test_resume_checks_steps_and_needs_a_checkpoint(
     assert code == 1 and err == "error: --steps 0: must be >= 1"
     code, err = invoke(["run", "--resume", str(run_dir)], monkeypatch, capsys)
     assert code == 1 and err.startswith(f"error: {run_dir}: no checkpoint yet"), err
+
+
+# ---- eval, play and report on one-iteration runs of each task ---------------------------------
+
+BIN_OBJECTS = "builtin_box,builtin_cylinder,builtin_sphere,builtin_dice,builtin_mug,builtin_plate"
+"""Six objects, one bin of five: exactly one of them is in no bin."""
+TINY_PPO = {"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
+            "hidden": (32, 32, 32), "context_hidden": (16, 16)}
+
+
+def _train(env: dict, path: Path) -> Path:
+    from trainer.ppo import train
+
+    cfg = load_train_config(
+        env={"num_envs": 4, "max_steps": 10, **env}, ppo=TINY_PPO,
+        run={"total_steps": 32, "checkpoint_every": 1, "seed": 3},
+    )
+    return train(cfg, path, progress=False).path
+
+
+@pytest.fixture(scope="module")
+def bin_run(builtin_data: Config, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A one-iteration bin run: one bin of 5 of BIN_OBJECTS, 4 envs, 10-step episodes."""
+    return _train(
+        {"task": "bin", "objects": BIN_OBJECTS, "data_dir": builtin_data.data_dir,
+         "bin": {"num_objects": 5, "layouts": 1, "bank_size": 2}},
+        tmp_path_factory.mktemp("bin") / "run",
+    )
+
+
+@pytest.fixture(scope="module")
+def lift_run(builtin_data: Config, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A one-iteration lift run on two objects."""
+    return _train(
+        {"objects": "builtin_cylinder,builtin_sphere", "representation": "com",
+         "data_dir": builtin_data.data_dir},
+        tmp_path_factory.mktemp("lift") / "run",
+    )
+
+
+def _bins_hold(run_dir: Path) -> tuple[list[str], list[str]]:
+    """(objects in the run's bins, objects of its set in none), from the run's own env."""
+    from trainer.evaluation import run_bins
+
+    env = run_bins(trainer.ppo.RunDir(run_dir).load_config(), 1)
+    names = env.objects.names
+    held = {names[k] for k in env.layouts.unique().tolist()}
+    env.close()
+    return sorted(held), sorted(set(names) - held)
+
+
+def _per_object(run_dir: Path) -> dict[str, dict[str, str]]:
+    rows = csv.DictReader((run_dir / "eval" / "per_object.csv").read_text().splitlines())
+    return {row["object"]: row for row in rows}
+
+
+def test_lift_eval_names_the_task(
+    lift_run: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
+) -> None:
+    code, out, err = invoke_all(["eval", str(lift_run), "--episodes-per-object", "3"],
+                                monkeypatch, capsys)
+    assert code == 0, err
+    lines = out.splitlines()
+    assert lines[0] == "task lift, representation com: success per target object"
+    assert [line.split()[0] for line in lines[1:]] == ["builtin_cylinder", "builtin_sphere",
+                                                       "overall"]
+    rows = _per_object(lift_run)
+    assert [int(r["episodes"]) for r in rows.values()] == [3, 3]  # exactly, as before the tasks
+    assert {r["task"] for r in rows.values()} == {"lift"}
+    table = (lift_run / "eval" / "table.md").read_text()
+    assert table.startswith("Success per target object: task lift, representation com.")
+    assert "| object | episodes | com |" in table and "| **all (6 episodes)** |" in table
+
+
+def test_bin_eval_counts_episodes_per_target(
+    bin_run: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
+) -> None:
+    held, absent = _bins_hold(bin_run)
+    assert len(held) == 5 and len(absent) == 1
+    code, out, err = invoke_all(["eval", str(bin_run), "--episodes-per-object", "2"],
+                                monkeypatch, capsys)
+    assert code == 0, err
+    # 5 objects x 2 episodes, 4 envs a round with the targets balanced: 3 rounds, 12 episodes.
+    assert out.splitlines()[0] == (
+        "task bin (5 objects per bin), representation bbox, context none; 3 rounds of episodes: "
+        "success per target object"
+    )
+    assert out.splitlines()[-1] == f"note: in none of the run's bins (never a target): {absent[0]}"
+    rows = _per_object(bin_run)
+    assert list(rows) == BIN_OBJECTS.split(",")
+    episodes = {name: int(row["episodes"]) for name, row in rows.items()}
+    assert episodes[absent[0]] == 0 and rows[absent[0]]["success_rate"] == ""
+    assert all(episodes[name] >= 2 for name in held) and sum(episodes.values()) == 12
+    assert all(0 <= int(r["successes"]) <= int(r["episodes"]) for r in rows.values())
+    assert {(r["task"], r["bin_objects"], r["context"]) for r in rows.values()} == {
+        ("bin", "5", "none")
+    }
+    table = (bin_run / "eval" / "table.md").read_text()
+    assert "task bin (5 objects per bin), representation bbox, context none" in table
+    assert "| object | episodes | bin5-bbox |" in table and f"| {absent[0]} | 0 | — |" in table
+    # The report reads the bin run's eval and names its task.
+    code, out, err = invoke_all(["report", str(bin_run), "--out", str(bin_run.parent / "rep")],
+                                monkeypatch, capsys)
+    assert code == 0, err
+    report = (bin_run.parent / "rep" / "report.md").read_text()
+    assert "| bin5 | bbox | sdf | ur5e | 1 |" in report
+    assert "| object | bin5-bbox |" in report
+
+
+def test_bin_eval_stops_at_max_rounds(
+    bin_run: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
+) -> None:
+    code, out, err = invoke_all(
+        ["eval", str(bin_run), "--episodes-per-object", "3", "--max-rounds", "1"],
+        monkeypatch, capsys,
+    )
+    assert code == 0, err
+    assert "; 1 round of episodes:" in out.splitlines()[0]
+    # One round of 4 envs: 4 of the 5 objects got one episode each, none got 3.
+    note = next(line for line in out.splitlines() if "--max-rounds" in line)
+    assert note.startswith("note: after 1 round (--max-rounds) 5 objects have fewer than 3")
+    assert sum(int(r["episodes"]) for r in _per_object(bin_run).values()) == 4
+
+
+def test_forced_targets_are_the_asked_object(bin_run: Path) -> None:
+    """play's bin episodes: the envs whose bin holds the object get it as the target, its lift
+    measured from its own height at the reset."""
+    import torch
+
+    from trainer.evaluation import force_targets, play_bins
+
+    held, _ = _bins_hold(bin_run)
+    cfg = trainer.ppo.RunDir(bin_run).load_config()
+    env, ids, slots = play_bins(cfg, held[-1], 2)
+    k = env.objects.names.index(held[-1])
+    assert ids == [0, 1] and (slots[2:] == -1).all()  # one bin: every env holds it
+    env.set_seed(7)
+    env.reset()
+    td = force_targets(env, slots)
+    assert (env.target_objects()[ids] == k).all() and (td["object_id"][ids, 0] == k).all()
+    heights = env.slot_poses(env.backend.qpos)[..., 2]
+    target = env.state["target_slot"]
+    torch.testing.assert_close(env.state["start_height"], heights.gather(1, target[:, None])[:, 0])
+    env.close()
+
+
+def test_bin_play_bad_object_is_one_line(
+    bin_run: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
+) -> None:
+    held, absent = _bins_hold(bin_run)
+    code, err = invoke(["play", str(bin_run), "--object", absent[0]], monkeypatch, capsys)
+    assert code == 1 and err == (
+        f"error: --object {absent[0]}: none of the run's 1 bins holds it (they hold "
+        f"{', '.join(held)}): play one of those"
+    )
+    code, err = invoke(["play", str(bin_run), "--object", "builtin_knife"], monkeypatch, capsys)
+    assert code == 1 and err.startswith(
+        f"error: --object builtin_knife: not in the object set '{BIN_OBJECTS}' of this bin run"
+    ) and "\n" not in err, err
+
+
+def test_bin_play_renders_episodes_of_the_target(
+    bin_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
+) -> None:
+    held, _ = _bins_hold(bin_run)
+    video = tmp_path / "play.gif"
+    code, out, err = invoke_all(
+        ["play", str(bin_run), "--object", held[0], "--episodes", "2", "--video", str(video)],
+        monkeypatch, capsys,
+    )
+    assert code == 0, err
+    assert out.startswith(f"{held[0]}: success ") and "/2, " in out and str(video) in out
+    assert video.stat().st_size > 1000

@@ -105,29 +105,31 @@ def demo(
 ) -> None:
     """Scripted grasps (approach from above, close, lift): proof that the hand can grasp.
 
-    Runs TRIALS randomized trials per object at once and prints how many lifted the object by
-    0.2 m. The video shows the first trial of each object (up to four) side by side.
+    Runs TRIALS randomized trials per object at once (the lift task, one object on the table,
+    whatever task the config names) and prints how many lifted the object by 0.2 m. The video
+    shows the first trial of each object (up to four) side by side.
     """
     _at_least("--trials", trials, 1)
     _at_least("--seed", seed, 0)
-    from trainer.env import GraspEnv
     from trainer.objects import resolve_names
     from trainer.scripted import ScriptedGrasp, run_scripted_grasp
+    from trainer.tasks import make_env
 
     overrides = {"data_dir": data_dir} if data_dir else {}
-    cfg = load_env_config(config_path, **overrides)
+    cfg = load_env_config(config_path, task="lift", context="none", **overrides)
     check_device(cfg.device, f"device {cfg.device!r} in {config_path}", 'set device = "cpu"')
     names = resolve_names(objects, cfg.data_dir)
     cfg = dataclasses.replace(
         cfg, num_envs=trials * len(names), objects=",".join(names),
         robot=dataclasses.replace(cfg.robot, kind=robot),
     )
-    env = GraspEnv(cfg, seed=seed)
+    env = make_env(cfg, seed=seed)
+    targets = env.target_objects().cpu()  # lift: the env's one object, fixed at build
     recorder = None
     if str(video) not in ("", "."):
         from trainer.video import EnvRecorder
 
-        firsts = [int((env.env_object == k).nonzero()[0, 0]) for k in range(len(names))]
+        firsts = [int((targets == k).nonzero()[0, 0]) for k in range(len(names))]
         recorder = EnvRecorder(env, firsts[:4], width=320, height=240)
     script = ScriptedGrasp()
     with click.progressbar(length=script.total_steps, label="scripted grasp") as bar:
@@ -139,8 +141,9 @@ def demo(
 
         lifted = run_scripted_grasp(env, script, on_step)
     width = max(len(n) for n in names)
+    lifted = lifted.cpu()
     for k, name in enumerate(names):
-        mine = env.env_object == k
+        mine = targets == k
         click.echo(f"{name:<{width}}  lifted {int(lifted[mine].sum())}/{int(mine.sum())}")
     if recorder is not None:
         path = recorder.save(video, fps=cfg.physics.control_hz)
@@ -258,22 +261,45 @@ def _resume(run_dir: Path, steps: int | None) -> None:
 
 @cli.command("eval")
 @click.argument("run_dir", type=click.Path(path_type=Path))
-@click.option("--episodes-per-object", default=10, show_default=True)
-@click.option("--objects", default=None, help="Evaluate on these objects instead.")
+@click.option("--episodes-per-object", default=10, show_default=True,
+              help="Episodes with each object as the target (bin: at least that many).")
+@click.option("--objects", default=None, help="Evaluate on these objects instead (bin: the "
+              "bins are drawn from them).")
+@click.option("--max-rounds", default=20, show_default=True,
+              help="Bin task: rounds of episodes at most, however few an object has.")
 @click.option("--device", default=None, help="Torch device [the run's].")
 def eval_cmd(
-    run_dir: Path, episodes_per_object: int, objects: str | None, device: str | None
+    run_dir: Path, episodes_per_object: int, objects: str | None, max_rounds: int,
+    device: str | None,
 ) -> None:
-    """Success per object of the deterministic policy (eval/per_object.csv, eval/table.md)."""
+    """Success per target object of the deterministic policy (eval/per_object.csv,
+    eval/table.md).
+
+    Lift: EPISODES_PER_OBJECT episodes of each object. Bin: the bins the run trained on, rounds
+    of new episodes with the targets balanced over the objects, until each object in the bins
+    has been the target at least EPISODES_PER_OBJECT times (or MAX_ROUNDS rounds ran).
+    """
     _at_least("--episodes-per-object", episodes_per_object, 1)
+    _at_least("--max-rounds", max_rounds, 1)
     _device(device)
     from trainer.evaluation import evaluate
 
-    result = evaluate(_run_dir(run_dir), episodes_per_object, objects, device=device)
+    result = evaluate(
+        _run_dir(run_dir), episodes_per_object, objects, device=device, max_rounds=max_rounds
+    )
+    click.echo(f"{result.describe()}: success per target object")
     width = max(len(n) for n in result.names)
     for k, name in enumerate(result.names):
         click.echo(f"{name:<{width}}  {result.successes[k]}/{result.episodes[k]}")
     click.echo(f"{'overall':<{width}}  {result.overall:.3f}")
+    if result.short:
+        click.echo(
+            f"note: after {result.rounds} round{'s' if result.rounds != 1 else ''} "
+            f"(--max-rounds) {len(result.short)} objects have fewer than {episodes_per_object} "
+            f"episodes: {', '.join(result.short)}"
+        )
+    if result.absent:
+        click.echo(f"note: in none of the run's bins (never a target): {', '.join(result.absent)}")
 
 
 @cli.command()
@@ -297,7 +323,8 @@ def report(run_dirs: tuple[Path, ...], out: Path, compare: str | None) -> None:
 
 @cli.command()
 @click.argument("run_dir", type=click.Path(path_type=Path))
-@click.option("--object", "object_name", required=True, help="Object to grasp.")
+@click.option("--object", "object_name", required=True,
+              help="Object to grasp (bin run: the target, in one of the run's bins).")
 @click.option("--video", type=click.Path(path_type=Path, dir_okay=False),
               default=Path("play.mp4"), show_default=True)
 @click.option("--episodes", default=1, show_default=True, help="Episodes side by side.")
@@ -306,28 +333,40 @@ def report(run_dirs: tuple[Path, ...], out: Path, compare: str | None) -> None:
 def play(
     run_dir: Path, object_name: str, video: Path, episodes: int, seed: int, device: str | None
 ) -> None:
-    """Render episodes of the trained (deterministic) policy into a video."""
+    """Render episodes of the trained (deterministic) policy into a video.
+
+    Lift run: OBJECT alone on the table. Bin run: episodes in the run's bins whose target is
+    OBJECT (it must be in one of them).
+    """
     _at_least("--episodes", episodes, 1)
     _at_least("--seed", seed, 0)
     _device(device)
-    from trainer.env import GraspEnv
-    from trainer.evaluation import run_episodes
+    from trainer.evaluation import play_bins, run_episodes
     from trainer.objects import resolve_names
     from trainer.ppo import load_agent
+    from trainer.tasks import make_env
     from trainer.video import EnvRecorder
 
     cfg, agent = load_agent(_run_dir(run_dir), device)
-    if len(resolve_names(object_name, cfg.env.data_dir)) != 1:
+    names = resolve_names(object_name, cfg.env.data_dir)
+    if len(names) != 1:
         raise TrainerError(f"--object {object_name}: names several objects: name one")
-    env = GraspEnv(dataclasses.replace(cfg.env, objects=object_name, num_envs=episodes), seed)
-    recorder = EnvRecorder(env, range(min(episodes, 4)), width=480, height=360)
-    success, length = run_episodes(env, agent.actor, on_step=recorder.capture)
+    if cfg.env.task == "bin":
+        env, ids, slots = play_bins(cfg, names[0], episodes)
+        env.set_seed(seed)
+    else:
+        env = make_env(dataclasses.replace(cfg.env, objects=names[0], num_envs=episodes), seed)
+        ids, slots = list(range(episodes)), None
+    recorder = EnvRecorder(env, ids[:4], width=480, height=360)
+    success, length, _ = run_episodes(
+        env, agent.actor, on_step=recorder.capture, target_slots=slots, watch=ids
+    )
     recorder.capture_hold()  # 1 s more, so the video does not end on the lift
     recorder.save(video, fps=cfg.env.physics.control_hz)
     recorder.close()
     env.close()
-    click.echo(f"{object_name}: success {int(success.sum())}/{episodes}, "
-               f"{int(length.max())} steps; video: {video}")
+    click.echo(f"{names[0]}: success {int(success[ids].sum())}/{len(ids)}, "
+               f"{int(length[ids].max())} steps; video: {video}")
 
 
 def main() -> None:

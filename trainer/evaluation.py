@@ -1,11 +1,18 @@
-"""Evaluation of a trained policy: deterministic actions (the Gaussian's mean), a fixed number
-of episodes per object, success counted per object (the paper's Table I), and rollout videos.
+"""Evaluation of a trained policy: deterministic actions (the Gaussian's mean), success counted
+per *target* object (the paper's Table I), and the episodes behind rollout videos.
+
+Lift: a fixed number of episodes per object (one object per env). Bin: the run's own bins (the
+layouts its training drew, from the run's seed) with new episodes; each round gives every env a
+target chosen to balance the objects (the fewest episodes so far first), until every object in
+the bins has at least ``episodes_per_object`` episodes as the target, or ``max_rounds`` rounds
+have run (then the result says it is short).
 """
 
 from __future__ import annotations
 
 import csv
 import dataclasses
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import torch
@@ -13,19 +20,36 @@ from tensordict import TensorDictBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from geomprep.store import atomic_path
-from trainer.env import GraspEnv
+from trainer.config import EnvConfig, TrainConfig
 from trainer.errors import TrainerError
 from trainer.objects import resolve_names
 from trainer.ppo import RunDir, load_agent
+from trainer.report import task_label
+from trainer.tasks import GraspTask, make_env
+
+MAX_ROUNDS = 20
+"""Rounds of bin episodes at most (``trainer eval --max-rounds``)."""
 
 
 @dataclasses.dataclass(frozen=True)
 class EvalResult:
-    """Per object (in the order of ``names``): episodes run and successes."""
+    """Per object (in the order of ``names``): episodes run with it as the target, successes.
+
+    The task as the policy saw it (``task``, ``bin_objects``, ``context``, ``representation``),
+    the rounds of episodes run (bin; 1 for lift) and whether every object reached the asked
+    episodes (``short``: the objects of the bins that did not within ``max_rounds``; ``absent``:
+    objects of the set that no bin holds, never a target)."""
 
     names: list[str]
     episodes: list[int]
     successes: list[int]
+    task: str = "lift"
+    representation: str = ""
+    bin_objects: int | None = None
+    context: str = "none"
+    rounds: int = 1
+    short: list[str] = dataclasses.field(default_factory=list)
+    absent: list[str] = dataclasses.field(default_factory=list)
 
     @property
     def overall(self) -> float:
@@ -34,18 +58,67 @@ class EvalResult:
     def rate(self, k: int) -> float:
         return self.successes[k] / max(1, self.episodes[k])
 
+    @property
+    def label(self) -> str:
+        """``sq`` (lift), ``bin5-bbox``, ``bin5-bbox+ctx``: as ``trainer report`` names groups."""
+        return task_label(self.task, self.representation, self.bin_objects, self.context)
+
+    def describe(self) -> str:
+        """One line: the task, what the policy sees, and (bin) the rounds run."""
+        if self.task != "bin":
+            return f"task {self.task}, representation {self.representation}"
+        text = (
+            f"task bin ({self.bin_objects} objects per bin), representation "
+            f"{self.representation}, context {self.context}; {self.rounds} round"
+            f"{'s' if self.rounds != 1 else ''} of episodes"
+        )
+        return text
+
+
+def force_targets(env: GraspTask, slots: torch.Tensor) -> TensorDictBase:
+    """Right after a reset: make slot ``slots[i]`` the target of env i's episode (rows with
+    ``slots[i] < 0`` keep theirs); returns the reset observation of the new targets.
+
+    Uses only the env's public checkpoint hooks: the just-reset state is snapshotted, its
+    ``target_slot`` and ``start_height`` (the target's height at reset, what its lift is measured
+    from) rewritten, and restored by a second reset."""
+    snapshot = env.snapshot()
+    state = snapshot["state"]
+    slots = slots.to(state["target_slot"].device)
+    keep = slots < 0
+    target = torch.where(keep, state["target_slot"], slots)
+    heights = env.slot_poses(env.backend.qpos)[..., 2].to(state["start_height"])
+    start = heights.gather(1, target[:, None].to(heights.device))[:, 0]
+    state["target_slot"] = target
+    state["start_height"] = torch.where(keep, state["start_height"], start)
+    env.restore_on_next_reset(snapshot)
+    return env.reset()
+
 
 def run_episodes(
-    env: GraspEnv, actor: torch.nn.Module, deterministic: bool = True, on_step=None  # noqa: ANN001
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """One episode in every env from a fresh reset; returns (success (E,) bool, length (E,)).
-    Envs that finish early keep stepping (nothing is reset) but their outcome is frozen."""
+    env: GraspTask,
+    actor: torch.nn.Module,
+    deterministic: bool = True,
+    on_step: Callable[[], None] | None = None,
+    target_slots: torch.Tensor | None = None,
+    watch: Sequence[int] | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """One episode in every env from a fresh reset; returns (success (E,) bool, length (E,),
+    target object id (E,), taken right after the reset), on the CPU.
+
+    Envs that finish early keep stepping (nothing is reset) but their outcome is frozen; the
+    rollout ends when every env (or every env of ``watch``) has finished. ``target_slots`` (E,):
+    the target slot of each env's episode (``force_targets``; -1: the env's own draw)."""
     E = env.num_envs
     success = torch.zeros(E, dtype=torch.bool)
     length = torch.zeros(E, dtype=torch.long)
     finished = torch.zeros(E, dtype=torch.bool)
+    watched = torch.as_tensor(list(range(E)) if watch is None else list(watch), dtype=torch.long)
     mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
     td: TensorDictBase = env.reset()
+    if target_slots is not None:
+        td = force_targets(env, target_slots)
+    targets = env.target_objects().cpu()
     with torch.no_grad(), set_exploration_type(mode):
         for _ in range(env.cfg.max_steps):
             td = env.step(actor(td))
@@ -55,10 +128,10 @@ def run_episodes(
             success |= done & td["next", "success"][:, 0].cpu()
             length[~finished] += 1
             finished |= done
-            if finished.all():
+            if finished[watched].all():
                 break
             td = step_mdp(td)
-    return success, length
+    return success, length, targets
 
 
 def evaluate(
@@ -68,14 +141,36 @@ def evaluate(
     seed: int = 12345,
     max_envs: int = 1024,
     device: str | None = None,
+    max_rounds: int = MAX_ROUNDS,
 ) -> EvalResult:
     """Evaluate the run's last checkpoint on its object set (or ``objects``), on ``device``
-    (default: the run's); writes ``eval/per_object.csv`` and ``eval/table.md`` in the run
-    directory."""
+    (default: the run's), for the run's task; writes ``eval/per_object.csv`` and
+    ``eval/table.md`` in the run directory.
+
+    Lift: exactly ``episodes_per_object`` episodes of each object. Bin: rounds of episodes on
+    the run's bins (drawn from ``objects`` instead when given), balanced over the targets, until
+    every object in them has been the target ``episodes_per_object`` times or more, at most
+    ``max_rounds`` rounds."""
     if episodes_per_object < 1:
         raise TrainerError(f"episodes_per_object must be >= 1, got {episodes_per_object}")
+    if max_rounds < 1:
+        raise TrainerError(f"max_rounds must be >= 1, got {max_rounds}")
     cfg, agent = load_agent(run_dir, device)
     names = resolve_names(objects or cfg.env.objects, cfg.env.data_dir)
+    if cfg.env.task == "bin":
+        result = _evaluate_bin(
+            cfg, agent.actor, names, episodes_per_object, seed, max_envs, max_rounds
+        )
+    else:
+        result = _evaluate_lift(cfg.env, agent.actor, names, episodes_per_object, seed, max_envs)
+    write_eval(RunDir(Path(run_dir)), result)
+    return result
+
+
+def _evaluate_lift(
+    cfg: EnvConfig, actor: torch.nn.Module, names: list[str], episodes_per_object: int,
+    seed: int, max_envs: int,
+) -> EvalResult:
     episodes = [0] * len(names)
     successes = [0] * len(names)
     # Objects in batches of envs: each batch runs episodes_per_object episodes of each object.
@@ -83,30 +178,137 @@ def evaluate(
     for start in range(0, len(names), per_batch):
         chunk = names[start : start + per_batch]
         env_cfg = dataclasses.replace(
-            cfg.env, objects=",".join(chunk), num_envs=episodes_per_object * len(chunk)
+            cfg, objects=",".join(chunk), num_envs=episodes_per_object * len(chunk)
         )
-        env = GraspEnv(env_cfg, seed=seed + start)
-        success, _ = run_episodes(env, agent.actor)
-        ids = env.env_object.cpu()
+        env = make_env(env_cfg, seed=seed + start)
+        success, _, ids = run_episodes(env, actor)
         for k in range(len(chunk)):
             episodes[start + k] += int((ids == k).sum())
             successes[start + k] += int(success[ids == k].sum())
         env.close()
-    result = EvalResult(names, episodes, successes)
-    write_eval(RunDir(Path(run_dir)), result, cfg.env.representation)
-    return result
+    return EvalResult(names, episodes, successes, task=cfg.task,
+                      representation=cfg.representation)
 
 
-def write_eval(run: RunDir, result: EvalResult, representation: str) -> None:
+def run_bins(cfg: TrainConfig, num_envs: int, objects: Sequence[str] | None = None) -> GraspTask:
+    """The bin env of a bin run with ``num_envs`` envs: the bins the run trained on (its seed
+    draws the same layouts, whose settled states are cached), from ``objects`` instead of the
+    run's object set when given. Seed its episodes with ``env.set_seed``."""
+    env_cfg = dataclasses.replace(cfg.env, num_envs=num_envs)
+    if objects is not None:
+        env_cfg = dataclasses.replace(env_cfg, objects=",".join(objects))
+    return make_env(env_cfg, seed=cfg.run.seed)
+
+
+def play_bins(
+    cfg: TrainConfig, name: str, episodes: int
+) -> tuple[GraspTask, list[int], torch.Tensor]:
+    """For ``trainer play --object NAME`` on a bin run: the run's bins (``run_bins``, each
+    with ``episodes`` envs), the envs (up to ``episodes``) whose bin holds NAME, and the target
+    slots that make NAME their target (``run_episodes(target_slots=...)``; -1 elsewhere). A name
+    outside the run's object set, or in none of its bins, is a one-line error naming the fix."""
+    names = resolve_names(cfg.env.objects, cfg.env.data_dir)
+    if name not in names:
+        raise TrainerError(
+            f"--object {name}: not in the object set {cfg.env.objects!r} of this bin run: "
+            f"play one of its objects ({_listing(names)})"
+        )
+    count = min(cfg.env.bin.layouts, cfg.env.num_envs)
+    env = run_bins(cfg, count * episodes)
+    holds = env.assignment.cpu() == env.objects.names.index(name)  # (E, K)
+    ids = holds.any(1).nonzero()[:, 0][:episodes].tolist()
+    if not ids:
+        layouts, known = env.layouts.cpu(), env.objects.names
+        env.close()
+        held = sorted({known[k] for k in layouts.unique().tolist()})
+        raise TrainerError(
+            f"--object {name}: none of the run's {len(layouts)} bins holds it (they hold "
+            f"{_listing(held)}): play one of those"
+        )
+    slots = torch.full((env.num_envs,), -1, dtype=torch.long)
+    slots[ids] = holds[ids].long().argmax(1)
+    return env, ids, slots
+
+
+def _listing(names: Sequence[str], most: int = 12) -> str:
+    more = f", ... ({len(names)} in all)" if len(names) > most else ""
+    return ", ".join(names[:most]) + more
+
+
+def balanced_targets(assignment: torch.Tensor, counts: torch.Tensor) -> torch.Tensor:
+    """(E,) a target slot per env: env by env, the slot whose object has the fewest episodes
+    (``counts`` (num_objects,), plus those already planned in this round); ties go to the
+    lowest slot counted from the env's index, so that equal objects take turns."""
+    E, K = assignment.shape
+    planned = counts.clone()
+    slots = torch.empty(E, dtype=torch.long)
+    for i in range(E):
+        row = assignment[i]
+        order = (torch.arange(K) + i) % K
+        k = int(order[planned[row[order]].argmin()])
+        slots[i] = k
+        planned[row[k]] += 1
+    return slots
+
+
+def _evaluate_bin(
+    cfg: TrainConfig, actor: torch.nn.Module, names: list[str], episodes_per_object: int,
+    seed: int, max_envs: int, max_rounds: int,
+) -> EvalResult:
+    env = run_bins(cfg, min(cfg.env.num_envs, max_envs), names)
+    env.set_seed(seed)
+    assignment = env.assignment.cpu()
+    held = torch.zeros(len(names), dtype=torch.bool)
+    held[env.layouts.cpu().unique()] = True
+    episodes = torch.zeros(len(names), dtype=torch.long)
+    successes = torch.zeros(len(names), dtype=torch.long)
+    rounds = 0
+    while rounds < max_rounds and bool((episodes[held] < episodes_per_object).any()):
+        slots = balanced_targets(assignment, episodes)
+        success, _, ids = run_episodes(env, actor, target_slots=slots)
+        episodes += torch.bincount(ids, minlength=len(names))
+        successes += torch.bincount(ids[success], minlength=len(names))
+        rounds += 1
+    env.close()
+    short = [n for k, n in enumerate(names) if held[k] and episodes[k] < episodes_per_object]
+    absent = [n for k, n in enumerate(names) if not held[k]]
+    return EvalResult(
+        names, episodes.tolist(), successes.tolist(), task="bin",
+        representation=cfg.env.representation, bin_objects=cfg.env.bin.num_objects,
+        context=cfg.env.context, rounds=rounds, short=short, absent=absent,
+    )
+
+
+def write_eval(run: RunDir, result: EvalResult) -> None:
+    """``eval/per_object.csv`` (object, episodes, successes, success_rate, then the task as the
+    policy saw it: task, bin_objects, context, representation) and ``eval/table.md``."""
     out = run.path / "eval"
     out.mkdir(parents=True, exist_ok=True)
+    task = [result.task, result.bin_objects or "", result.context, result.representation]
     with atomic_path(out / "per_object.csv") as tmp, open(tmp, "w", newline="") as handle:
         writer = csv.writer(handle)
-        writer.writerow(["object", "episodes", "successes", "success_rate"])
+        writer.writerow(["object", "episodes", "successes", "success_rate", "task",
+                         "bin_objects", "context", "representation"])
         for k, name in enumerate(result.names):
-            writer.writerow([name, result.episodes[k], result.successes[k], f"{result.rate(k):.4f}"])  # noqa: E501
-    lines = [f"| object | {representation} |", "|---|---:|"]
-    lines += [f"| {n} | {result.rate(k):.2f} |" for k, n in enumerate(result.names)]
-    lines.append(f"| **all ({sum(result.episodes)} episodes)** | **{result.overall:.2f}** |")
+            rate = f"{result.rate(k):.4f}" if result.episodes[k] else ""
+            writer.writerow([name, result.episodes[k], result.successes[k], rate, *task])
+    lines = [
+        f"Success per target object: {result.describe()}.",
+        "",
+        f"| object | episodes | {result.label} |",
+        "|---|---:|---:|",
+    ]
+    for k, name in enumerate(result.names):
+        rate = f"{result.rate(k):.2f}" if result.episodes[k] else "—"
+        lines.append(f"| {name} | {result.episodes[k]} | {rate} |")
+    lines.append(
+        f"| **all ({sum(result.episodes)} episodes)** | {sum(result.episodes)} | "
+        f"**{result.overall:.2f}** |"
+    )
+    if result.short:
+        lines += ["", f"Fewer episodes than asked after {result.rounds} rounds: "
+                  f"{', '.join(result.short)}."]
+    if result.absent:
+        lines += ["", f"In none of the bins (never a target): {', '.join(result.absent)}."]
     with atomic_path(out / "table.md") as tmp:
         tmp.write_text("\n".join(lines) + "\n")

@@ -2,14 +2,19 @@
 
 A run directory is read as the trainer writes it::
 
-    RUN_DIR/config.json            env.representation, env.reward.kind, env.robot.kind, run.seed
+    RUN_DIR/config.json            env.task, env.bin.num_objects, env.context,
+                                   env.representation, env.reward.kind, env.robot.kind, run.seed
     RUN_DIR/metrics.csv            one row per PPO iteration: env_steps, wall_time_s, success_rate
     RUN_DIR/eval/per_object.csv    optional (``trainer eval``): object, episodes, successes
 
-Runs are grouped by (representation, reward kind, robot kind); the runs of a group are taken to
-differ by seed, and every table cell is a mean ± std (ddof = 0) over them. Units: env steps are
-counted over all parallel environments, wall time is seconds in the data and minutes in tables
-and plots, success rates are fractions in [0, 1].
+Runs are grouped by (task, representation, reward kind, robot kind), where the task is ``lift`` or
+``binN`` (N objects per bin) and the representation gains ``+ctx`` when the policy also sees the
+other objects (``context``): a bin run and a lift run are different groups even with the same
+representation. Run directories written before the tasks existed (no ``env.task``) are lift
+runs. The runs of a group are taken to differ by seed, and every table cell is a mean ± std
+(ddof = 0) over them. Units: env steps are counted over all parallel environments, wall time is
+seconds in the data and minutes in tables and plots, success rates are fractions in [0, 1].
+Group labels: ``sq`` (lift), ``bin5-bbox``, ``bin5-bbox+ctx``.
 """
 
 from __future__ import annotations
@@ -28,12 +33,37 @@ import numpy as np
 from geomprep.store import atomic_path
 from trainer.errors import TrainerError
 
-GroupKey = tuple[str, str, str]
-"""(representation, reward kind, robot kind)."""
+GroupKey = tuple[str, str, str, str]
+"""(task, representation, reward kind, robot kind): task ``lift`` or ``binN``, representation
+with ``+ctx`` when the policy sees the context (see ``task_name`` and ``view_name``)."""
 
 THRESHOLDS = (0.9, 0.95)
 CURVE_POINTS = 200
 _DASH = "—"
+
+
+def task_name(task: str, bin_objects: int | None = None) -> str:
+    """``lift``, or ``binN`` for the bin task with N objects per bin."""
+    return f"{task}{bin_objects}" if task == "bin" and bin_objects is not None else task
+
+
+def view_name(representation: str, context: str = "none") -> str:
+    """What the policy sees: the representation, ``+ctx`` when it also sees the context."""
+    return representation if context == "none" else f"{representation}+ctx"
+
+
+def task_label(
+    task: str, representation: str, bin_objects: int | None = None, context: str = "none"
+) -> str:
+    """A short label of a task as the policy sees it: ``sq`` (lift), ``bin5-bbox``,
+    ``bin5-bbox+ctx``."""
+    view = view_name(representation, context)
+    return view if task == "lift" else f"{task_name(task, bin_objects)}-{view}"
+
+
+def _label(key: GroupKey) -> str:
+    task, view = key[0], key[1]
+    return view if task == "lift" else f"{task}-{view}"
 
 
 @dataclass(frozen=True, eq=False)
@@ -59,6 +89,10 @@ class Run:
     """The lift curriculum's training target (m) and the success rate at it, per iteration;
     None for runs logged before the curriculum existed."""
     target_success_rate: np.ndarray | None = None
+    task: str = "lift"
+    """``lift`` or ``bin``; ``bin_objects`` (objects per bin) and ``context`` matter for bin."""
+    bin_objects: int | None = None
+    context: str = "none"
 
     @property
     def has_curriculum(self) -> bool:
@@ -66,7 +100,17 @@ class Run:
 
     @property
     def group(self) -> GroupKey:
-        return (self.representation, self.reward, self.robot)
+        return (
+            task_name(self.task, self.bin_objects),
+            view_name(self.representation, self.context),
+            self.reward,
+            self.robot,
+        )
+
+    @property
+    def label(self) -> str:
+        """The run's task and view, e.g. ``sq`` or ``bin5-bbox+ctx`` (see ``task_label``)."""
+        return task_label(self.task, self.representation, self.bin_objects, self.context)
 
 
 # --------------------------------------------------------------------------------------- loading
@@ -79,7 +123,7 @@ def load_run(path: str | Path) -> Run:
         raise TrainerError(
             f"{path}: not a directory; pass a run directory written by trainer run"
         )
-    representation, reward, robot, seed = _read_config(path / "config.json")
+    config = _read_config(path / "config.json")
     env_steps, wall_time_s, success_rate, h_bar, target_rate = _read_metrics(
         path / "metrics.csv"
     )
@@ -87,20 +131,25 @@ def load_run(path: str | Path) -> Run:
     per_object = _read_per_object(per_object_path) if per_object_path.is_file() else None
     return Run(
         path=path,
-        representation=representation,
-        reward=reward,
-        robot=robot,
-        seed=seed,
+        representation=config["representation"],
+        reward=config["reward"],
+        robot=config["robot"],
+        seed=config["seed"],
         env_steps=env_steps,
         wall_time_s=wall_time_s,
         success_rate=success_rate,
         per_object=per_object,
         h_bar=h_bar,
         target_success_rate=target_rate,
+        task=config["task"],
+        bin_objects=config["bin_objects"],
+        context=config["context"],
     )
 
 
-def _read_config(path: Path) -> tuple[str, str, str, int | None]:
+def _read_config(path: Path) -> dict[str, Any]:
+    """representation, reward, robot, seed (None if absent), task, bin_objects (None unless
+    bin), context. A config without ``env.task`` (a run from before the tasks) is a lift run."""
     fix = "pass a run directory written by trainer run"
     if not path.is_file():
         raise TrainerError(f"{path}: missing; {fix}")
@@ -132,7 +181,25 @@ def _read_config(path: Path) -> tuple[str, str, str, int | None]:
     seed = run_section.get("seed") if isinstance(run_section, dict) else None
     if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool)):
         raise TrainerError(f"{path}: run.seed is {seed!r}, not an integer; {fix}")
-    return names[0], names[1], names[2], seed
+    env = config["env"]
+    task = env.get("task", "lift")
+    context = env.get("context", "none")
+    for name, key in ((task, "env.task"), (context, "env.context")):
+        if not isinstance(name, str):
+            raise TrainerError(f"{path}: {key} is {name!r}, not a string; {fix}")
+    bin_objects = None
+    if task == "bin":
+        # BinConfig's default when a config leaves it out.
+        section = env.get("bin")
+        bin_objects = section.get("num_objects", 5) if isinstance(section, dict) else 5
+        if not isinstance(bin_objects, int) or isinstance(bin_objects, bool):
+            raise TrainerError(
+                f"{path}: env.bin.num_objects is {bin_objects!r}, not an integer; {fix}"
+            )
+    return {
+        "representation": names[0], "reward": names[1], "robot": names[2], "seed": seed,
+        "task": task, "bin_objects": bin_objects, "context": context,
+    }
 
 
 def _read_metrics(path: Path) -> tuple[np.ndarray, ...]:
@@ -285,26 +352,27 @@ def group_runs(runs: Iterable[Run]) -> dict[GroupKey, list[Run]]:
 
 
 def group_labels(runs: Iterable[Run]) -> dict[GroupKey, str]:
-    """A column label per group: the representation alone when the groups share reward and robot,
-    else ``representation/reward/robot``."""
+    """A column label per group: the task and view alone (``sq``, ``bin5-bbox``,
+    ``bin5-bbox+ctx``) when the groups share reward and robot, else ``label/reward/robot``."""
     keys = list(group_runs(runs))
-    if len({(reward, robot) for _, reward, robot in keys}) <= 1:
-        return {key: key[0] for key in keys}
-    return {key: "/".join(key) for key in keys}
+    if len({key[2:] for key in keys}) <= 1:
+        return {key: _label(key) for key in keys}
+    return {key: "/".join((_label(key), *key[2:])) for key in keys}
 
 
 def resolve_group(runs: Sequence[Run], name: str) -> GroupKey:
-    """The group a user names, by label or else by representation (if that names one group)."""
+    """The group a user names: by its label, else by its task and view (``bin5-bbox``) or its
+    representation (``sq``) if that names one group."""
     labels = group_labels(runs)
     for key, label in labels.items():
         if label == name:
             return key
-    matches = [key for key in labels if key[0] == name]
-    if len(matches) == 1:
-        return matches[0]
     known = ", ".join(labels.values())
-    if matches:
-        raise TrainerError(f"{name!r} names several groups; use one of the labels: {known}")
+    for matches in ([k for k in labels if _label(k) == name], [k for k in labels if k[1] == name]):
+        if len(matches) == 1:
+            return matches[0]
+        if matches:
+            raise TrainerError(f"{name!r} names several groups; use one of the labels: {known}")
     raise TrainerError(f"no group named {name!r}; the runs' groups are: {known}")
 
 
@@ -339,15 +407,16 @@ def _percent(threshold: float) -> str:
 def summary_table(
     runs: Sequence[Run], thresholds: Sequence[float] = THRESHOLDS, last_fraction: float = 0.1
 ) -> str:
-    """Markdown table, one line per group: final success and env steps (M) / minutes to reach
-    each threshold, as mean ± std over seeds. Seeds that never reach a threshold are left out of
-    its mean (the cell says how many did); "—" where none did."""
-    header = ["representation", "reward", "robot", "seeds", "final success"]
+    """Markdown table, one line per group (task ``lift`` or ``binN``, representation with
+    ``+ctx`` when the policy sees the context, reward, robot): final success and env steps (M) /
+    minutes to reach each threshold, as mean ± std over seeds. Seeds that never reach a
+    threshold are left out of its mean (the cell says how many did); "—" where none did."""
+    header = ["task", "representation", "reward", "robot", "seeds", "final success"]
     for threshold in thresholds:
         header += [f"steps to {_percent(threshold)} (M)", f"minutes to {_percent(threshold)}"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for (representation, reward, robot), members in group_runs(runs).items():
-        cells = [representation, reward, robot, str(len(members))]
+    for key, members in group_runs(runs).items():
+        cells = [*key, str(len(members))]
         cells.append(_mean_std([final_success(r, last_fraction) for r in members], 2))
         for threshold in thresholds:
             reached = [steps_to_reach(r, threshold) for r in members]
