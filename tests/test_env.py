@@ -1,5 +1,5 @@
-"""The batched grasping environment on the built-in objects: specs, resets, observations that
-move with the object, and the paper's reward against a hand computation."""
+"""The lift task on the built-in objects: specs, resets, observations that move with the object,
+and the paper's reward against a hand computation. (The bin task: tests/test_bin.py.)"""
 
 from __future__ import annotations
 
@@ -13,38 +13,40 @@ from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs
 
 from geomprep.config import Config
+from geomprep.rotations import (
+    axis_angle_to_matrix,
+    euler_xyz_to_matrix,
+    matrix_to_quat,
+    quat_to_matrix,
+)
 from geomprep.sdf_lookup import naive_query
 from trainer.config import REPRESENTATIONS, load_env_config
-from trainer.env import GraspEnv
-from trainer.representations import (
-    _euler_xyz_to_matrix,
-    object_representation,
-    representation_shape,
-)
-from trainer.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix
+from trainer.representations import object_representation, representation_shape
+from trainer.tasks import GraspTask, make_env
 
 
 @pytest.fixture(scope="module")
-def env(builtin_data: Config) -> GraspEnv:
+def env(builtin_data: Config) -> GraspTask:
     cfg = load_env_config(
         num_envs=7, objects="builtin", representation="sdf", data_dir=builtin_data.data_dir
     )
-    environment = GraspEnv(cfg, seed=0)
+    environment = make_env(cfg, seed=0)
     yield environment
     environment.close()
 
 
-def test_specs_and_rollout(env: GraspEnv) -> None:
+def test_specs_and_rollout(env: GraspTask) -> None:
     check_env_specs(env)
     rollout = env.rollout(5, break_when_any_done=False)
     assert rollout["next", "reward"].shape == (7, 5, 1)
     assert torch.isfinite(rollout["next", "reward"]).all()
     assert rollout["next", "proprio"].shape == (7, 5, 20)
     # Every built-in object is in some environment.
-    assert sorted(env.env_object.tolist()) == list(range(7))
+    assert sorted(env.target_objects().tolist()) == list(range(7))
+    assert torch.equal(rollout["next", "object_id"][:, 0, 0], env.target_objects())
 
 
-def test_partial_reset_touches_only_masked_envs(env: GraspEnv) -> None:
+def test_partial_reset_touches_only_masked_envs(env: GraspTask) -> None:
     env.reset()
     action = torch.zeros(7, 11)
     action[:, 2] = 1.0  # hands move up
@@ -55,12 +57,12 @@ def test_partial_reset_touches_only_masked_envs(env: GraspEnv) -> None:
     mask[2] = True
     env.reset(TensorDict({"_reset": mask}, batch_size=[7]))
     after = env.backend.qpos
-    assert env.step_count.tolist() == [3, 3, 0, 3, 3, 3, 3]
+    assert env.state["step_count"].tolist() == [3, 3, 0, 3, 3, 3, 3]
     assert torch.equal(after[mask[:, 0].logical_not()], before[mask[:, 0].logical_not()])
     torch.testing.assert_close(after[2, :6], env.home_qpos[:6])
 
 
-def test_reward_matches_hand_computation(env: GraspEnv) -> None:
+def test_reward_matches_hand_computation(env: GraspTask) -> None:
     env.reset()
     td = env.step(TensorDict({"action": torch.zeros(7, 11)}, batch_size=[7]))["next"]
     r = env.cfg.reward
@@ -69,8 +71,7 @@ def test_reward_matches_hand_computation(env: GraspEnv) -> None:
     # Independent check of the distances: the naive (unoptimised) grid lookup.
     qpos = env.backend.qpos
     tips = env.kinematics.forward(qpos).site_pos[:, 1:]
-    pos = qpos[:, env.obj_qpos : env.obj_qpos + 3]
-    quat = qpos[:, env.obj_qpos + 3 : env.obj_qpos + 7]
+    pos, quat = env.target_pose(qpos)
     local = (tips - pos[:, None]) @ quat_to_matrix(quat)
     grids, lows, voxels = [], [], []
     for path in env.objects.h5_paths:
@@ -80,7 +81,7 @@ def test_reward_matches_hand_computation(env: GraspEnv) -> None:
             voxels.append(float(np.atleast_1d(f["sdf"].attrs["voxel_size"])[0]))
     naive = naive_query(
         np.stack(grids), np.stack(lows), np.array(voxels), local.double().numpy(),
-        env.env_object.numpy(),
+        env.target_objects().numpy(),
     )
     torch.testing.assert_close(distances.double(), torch.from_numpy(naive), atol=1e-4, rtol=0)
     expected = (
@@ -100,7 +101,7 @@ def test_reward_ablations(builtin_data: Config, reward: str) -> None:
     cfg = load_env_config(num_envs=2, objects="builtin_box,builtin_mug", representation="com",
                           data_dir=builtin_data.data_dir)
     cfg = dataclasses.replace(cfg, reward=dataclasses.replace(cfg.reward, kind=reward))
-    environment = GraspEnv(cfg)
+    environment = make_env(cfg)
     environment.reset()
     td = environment.step(TensorDict({"action": torch.zeros(2, 11)}, batch_size=[2]))["next"]
     if reward == "none":
@@ -108,14 +109,14 @@ def test_reward_ablations(builtin_data: Config, reward: str) -> None:
     else:
         qpos = environment.backend.qpos
         tips = environment.kinematics.forward(qpos).site_pos[:, 1:]
-        com = qpos[:, environment.obj_qpos : environment.obj_qpos + 3]
+        com = environment.target_pose(qpos)[0]
         expected = 1.0 / ((tips - com[:, None]).norm(dim=-1).sum(-1) + 0.025)
         torch.testing.assert_close(td["reward_contact"][:, 0], expected)
     environment.close()
 
 
 @pytest.mark.parametrize("name", REPRESENTATIONS)
-def test_representations_move_with_the_object(env: GraspEnv, name: str) -> None:
+def test_representations_move_with_the_object(env: GraspTask, name: str) -> None:
     ids = torch.arange(7)
     gen = torch.Generator().manual_seed(3)
     pos_a = torch.rand(7, 3, generator=gen) * 0.2
@@ -145,7 +146,7 @@ def test_representations_move_with_the_object(env: GraspEnv, name: str) -> None:
         torch.testing.assert_close(b[:, :5], a[:, :5])
         torch.testing.assert_close(b[:, 8:], apply(a[:, 8:]), atol=1e-5, rtol=0)
         torch.testing.assert_close(
-            _euler_xyz_to_matrix(b[:, 5:8]), move @ _euler_xyz_to_matrix(a[:, 5:8]),
+            euler_xyz_to_matrix(b[:, 5:8]), move @ euler_xyz_to_matrix(a[:, 5:8]),
             atol=1e-5, rtol=0,
         )
     elif name.startswith("pc"):
@@ -164,7 +165,7 @@ def test_compiled_env_matches_eager(builtin_data: Config) -> None:
     for compiled in (False, True):
         cfg = load_env_config(num_envs=7, objects="builtin", representation="sdf",
                               data_dir=builtin_data.data_dir)
-        environment = GraspEnv(dataclasses.replace(cfg, compile=compiled), seed=3)
+        environment = make_env(dataclasses.replace(cfg, compile=compiled), seed=3)
         td = environment.reset()
         gen = torch.Generator().manual_seed(0)
         steps = []
@@ -172,7 +173,7 @@ def test_compiled_env_matches_eager(builtin_data: Config) -> None:
             td["action"] = torch.rand(7, 11, generator=gen) * 2 - 1
             out, td = environment.step_and_maybe_reset(td)
             steps.append(out["next"].select("proprio", "object", "reward", "done").clone())
-        outputs.append((steps, environment.ctrl.clone()))
+        outputs.append((steps, environment.state["ctrl"].clone()))
         environment.close()
     (eager, eager_ctrl), (compiled, compiled_ctrl) = outputs
     torch.testing.assert_close(compiled_ctrl, eager_ctrl, atol=1e-4, rtol=1e-4)
@@ -190,7 +191,7 @@ def test_compile_failure_falls_back_to_eager(builtin_data: Config) -> None:
 
     cfg = load_env_config(num_envs=3, objects="builtin_box", representation="com",
                           data_dir=builtin_data.data_dir)
-    environment = GraspEnv(dataclasses.replace(cfg, compile=True))
+    environment = make_env(dataclasses.replace(cfg, compile=True))
     # inductor's own patch (monkeypatch's undo leaves fx_graph_cache unreadable for later tests).
     broken = {"cpp.cxx": ("/nonexistent-c++",), "fx_graph_cache": False}
     with inductor.patch(broken), pytest.warns(UserWarning, match="torch.compile failed"):

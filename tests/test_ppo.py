@@ -21,10 +21,10 @@ from geomprep.config import Config
 from trainer.cli import cli
 from trainer.cli import main as trainer_main
 from trainer.config import load_train_config
-from trainer.env import GraspEnv
 from trainer.evaluation import evaluate, run_episodes
 from trainer.models import Agent, RunningNorm
 from trainer.ppo import load_agent, minibatch_size, train
+from trainer.tasks import make_env
 
 OBJECTS = "builtin_cylinder,builtin_sphere"
 
@@ -56,14 +56,14 @@ def test_untrained_policy_mean_action(builtin_data: Config) -> None:
     cfg = tiny_config(builtin_data.data_dir)
     home = (0.0,) * 6 + (1.0, -1.0, -1.0, -1.0, -1.0)
     cfg = dataclasses.replace(cfg, ppo=dataclasses.replace(cfg.ppo, init_action_mean=home))
-    env = GraspEnv(cfg.env, seed=0)
-    agent = Agent(cfg.env.representation, cfg.ppo)
+    env = make_env(cfg.env, seed=0)
+    agent = Agent(env.observation_spec, cfg.ppo)
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         td = env.step(agent.actor(env.reset()))
     hand = td["action"][:, 6:]
     torch.testing.assert_close(hand, torch.tensor([[1.0, -1, -1, -1, -1]]).expand(4, 5),
                                atol=0.2, rtol=0)
-    targets = env.ctrl[:, env.hand_act]
+    targets = env.state["ctrl"][:, env.hand_act]
     torch.testing.assert_close(targets, env.home_ctrl[env.hand_act].expand(4, 5), atol=0.2,
                                rtol=0)
     env.close()
@@ -83,8 +83,8 @@ def test_loss_sees_updated_normalizers(builtin_data: Config) -> None:
     """The collected log-probs and the loss's log-probs come from the same policy even after the
     observation statistics move (the loss module holds references to the buffers)."""
     cfg = tiny_config(builtin_data.data_dir)
-    env = GraspEnv(cfg.env)
-    agent = Agent("com", cfg.ppo)
+    env = make_env(cfg.env)
+    agent = Agent(env.observation_spec, cfg.ppo)
     loss = ClipPPOLoss(agent.actor, agent.critic, entropy_coeff=0.0)
     collector = Collector(env, agent.actor, frames_per_batch=32, total_frames=-1,
                           auto_register_policy_transforms=False)
@@ -143,9 +143,9 @@ def test_lift_curriculum_promotes_and_counts_task_success(
     assert torch.load(run.last, weights_only=False)["h_bar"] == pytest.approx(0.2)
     # Evaluation uses the task's h_bar, not the curriculum's.
     _, agent = load_agent(run.path)
-    env = GraspEnv(dataclasses.replace(cfg.env, num_envs=4), seed=1)
+    env = make_env(dataclasses.replace(cfg.env, num_envs=4), seed=1)
     assert float(env.h_bar) == pytest.approx(0.2)
-    success, _ = run_episodes(env, agent.actor)
+    success, _, _ = run_episodes(env, agent.actor)
     assert not success.any()
 
 
@@ -171,6 +171,33 @@ def test_resume_continues_bit_for_bit(builtin_data: Config, tmp_path: Path) -> N
     assert float(rows[-1]["h_bar"]) > -1.0
 
 
+def test_bin_run_with_context_resumes_bit_for_bit(builtin_data: Config, tmp_path: Path) -> None:
+    """The bin task (5 of the built-in objects, the target's box, the other objects' boxes as
+    context): a killed and resumed run ends exactly where an uninterrupted one does, targets,
+    clutter and context encoder included."""
+    cfg = load_train_config(
+        env={"num_envs": 4, "task": "bin", "objects": "builtin", "context": "bbox",
+             "data_dir": builtin_data.data_dir, "max_steps": 10,
+             "bin": {"num_objects": 5, "layouts": 2, "bank_size": 4}},
+        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 2,
+             "hidden": (32, 32, 32), "context_hidden": (16, 16)},
+        run={"total_steps": 4 * 8 * 4, "checkpoint_every": 2, "seed": 3},
+    )
+    assert cfg.env.representation == "bbox"  # the bin task's default
+    straight = train(cfg, tmp_path / "straight", progress=False)
+    killed = train(cfg, tmp_path / "killed", progress=False, stop_after=3)
+    train(None, tmp_path / "killed", resume=True, progress=False)  # type: ignore[arg-type]
+    a = torch.load(straight.checkpoints / "iter_000004.pt", weights_only=False)
+    b = torch.load(killed.checkpoints / "iter_000004.pt", weights_only=False)
+    assert any("context" in key for key in a["agent"])
+    for key, value in a["agent"].items():
+        assert torch.equal(value, b["agent"][key]), key
+    assert (a["env"]["backend"]["state"] == b["env"]["backend"]["state"]).all()
+    for key, value in a["env"]["state"].items():
+        assert torch.equal(value, b["env"]["state"][key]), key
+    assert a["env"]["state"]["target_slot"].max() < 5
+
+
 def test_eval_counts_match_a_manual_count(builtin_data: Config, tmp_path: Path) -> None:
     cfg = tiny_config(builtin_data.data_dir, iterations=2)
     run = train(cfg, tmp_path / "run", progress=False)
@@ -178,9 +205,9 @@ def test_eval_counts_match_a_manual_count(builtin_data: Config, tmp_path: Path) 
     assert result.names == OBJECTS.split(",") and result.episodes == [3, 3]
     # The same episodes by hand: same seed, same deterministic policy.
     _, agent = load_agent(run.path)
-    env = GraspEnv(dataclasses.replace(cfg.env, num_envs=6), seed=5)
-    success, length = run_episodes(env, agent.actor)
-    ids = env.env_object
+    env = make_env(dataclasses.replace(cfg.env, num_envs=6), seed=5)
+    success, length, _ = run_episodes(env, agent.actor)
+    ids = env.target_objects()
     assert result.successes == [int(success[ids == k].sum()) for k in range(2)]
     assert (length <= cfg.env.max_steps).all() and (length >= 1).all()
     rows = list(csv.DictReader((run.path / "eval" / "per_object.csv").read_text().splitlines()))

@@ -12,7 +12,7 @@ import torch
 
 from trainer import constants as C
 from trainer.assets.arm import dh_forward
-from trainer.assets.scene import build_scene, ur5e_home_joints
+from trainer.assets.scene import Scene, build_scene, ur5e_home_joints
 from trainer.config import load_env_config
 from trainer.kinematics import SiteKinematics, jacobian_transpose_step, pose_error
 
@@ -20,7 +20,7 @@ from trainer.kinematics import SiteKinematics, jacobian_transpose_step, pose_err
 def _model(kind: str) -> mujoco.MjModel:
     cfg = load_env_config()
     cfg = dataclasses.replace(cfg, robot=dataclasses.replace(cfg.robot, kind=kind))
-    return build_scene(cfg, None).compile()
+    return build_scene(cfg, Scene(num_slots=0), []).compile()
 
 
 @pytest.fixture(scope="module")

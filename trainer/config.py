@@ -161,13 +161,14 @@ class BinConfig(_Checked):
     where one model per env would cost 256 of them at 256 envs."""
     bank_size: int = bounded(16, ge=1)
     """Settled clutter states per layout (each reset draws one, with a random quarter turn)."""
-    inner_half_size: tuple[float, float] = bounded((0.17, 0.17), gt=0)
-    """Half the inside length and width of the bin (m)."""
+    inner_half_size: tuple[float, float] = bounded((0.2, 0.2), gt=0)
+    """Half the inside length and width of the bin (m): 40 cm square holds 10 YCB objects,
+    plates (26 cm) included, without most drops spilling over the walls."""
     wall_height: float = bounded(0.06, gt=0)
     wall_thickness: float = bounded(0.01, gt=0)
-    drop_spacing: float = bounded(0.06, ge=0)
+    drop_spacing: float = bounded(0.02, ge=0)
     """Vertical gap between the objects at release (m): they are dropped one above the other."""
-    settle_seconds: float = bounded(2.0, gt=0)
+    settle_seconds: float = bounded(3.0, gt=0)
     max_penetration: float = bounded(0.005, gt=0)
     """A settled state with two objects (or an object and the bin) interpenetrating deeper than
     this (m) is dropped again."""

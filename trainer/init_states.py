@@ -14,6 +14,7 @@ files are written atomically.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 from collections.abc import Sequence
@@ -30,7 +31,7 @@ from trainer.assets.scene import Scene, build_scene, slot_name, slot_qpos_addres
 from trainer.config import EnvConfig, config_dict
 from trainer.errors import TrainerError
 
-BANK_VERSION = 2
+BANK_VERSION = 3
 MAX_REST_SPEED = 0.02
 """An object moving faster than this (m/s) after settling is not at rest: drop it again."""
 MAX_ATTEMPTS = 20
@@ -49,12 +50,23 @@ def bank_key(cfg: EnvConfig, scene: Scene, mjcf_keys: Sequence[str]) -> str:
 
 
 def slot_radii(model: mujoco.MjModel, num_slots: int) -> np.ndarray:
-    """(K,) radius (m) of each slot's object around its body origin (the centre of mass)."""
+    """(K,) radius (m) of each slot's object around its body origin (the centre of mass): the
+    farthest vertex of its collision hulls (a geom's bounding sphere would overestimate it, and
+    the objects are stacked by these radii before they drop)."""
     radii = np.zeros(num_slots)
     for k in range(num_slots):
-        geoms = np.flatnonzero(model.geom_bodyid == model.body(slot_name(k)).id)
-        reach = np.linalg.norm(model.geom_pos[geoms], axis=1) + model.geom_rbound[geoms]
-        radii[k] = reach.max() if len(geoms) else 0.05
+        reach = [0.0]
+        for g in np.flatnonzero(model.geom_bodyid == model.body(slot_name(k)).id):
+            mesh = model.geom_dataid[g]
+            if model.geom_type[g] != mujoco.mjtGeom.mjGEOM_MESH or mesh < 0:
+                reach.append(np.linalg.norm(model.geom_pos[g]) + model.geom_rbound[g])
+                continue
+            start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
+            rot = np.empty(9)
+            mujoco.mju_quat2Mat(rot, model.geom_quat[g])
+            verts = model.mesh_vert[start : start + count] @ rot.reshape(3, 3).T + model.geom_pos[g]
+            reach.append(float(np.linalg.norm(verts, axis=1).max()))
+        radii[k] = max(reach)
     return radii
 
 
@@ -113,17 +125,28 @@ def _accepted(
     return good
 
 
+CHUTE_HEIGHT = 0.5
+"""Bin walls (m) while the objects fall: a chute that keeps them from bouncing over the real
+walls; then the chute is removed and the clutter settles again in the real bin."""
+
+
 def drop_and_settle(
     cfg: EnvConfig, scene: Scene, xmls: Sequence[Path], size: int, seed: int
 ) -> np.ndarray:
     """Settled states (size, K, 7) of the scene's objects: position (m, world) and quaternion
     (w, x, y, z) of every slot."""
     model = build_scene(cfg, scene, xmls, robot=False).compile()
+    phases = [(model, 1.0)]
+    in_bin = "bin" in scene.fixtures
+    if in_bin:
+        # Most of the settling inside the chute, the last third in the real bin.
+        walls = max(CHUTE_HEIGHT, cfg.bin.wall_height)
+        chute = dataclasses.replace(cfg, bin=dataclasses.replace(cfg.bin, wall_height=walls))
+        phases = [(build_scene(chute, scene, xmls, robot=False).compile(), 2 / 3), (model, 1 / 3)]
     data = mujoco.MjData(model)
     address = slot_qpos_addresses(model, scene.num_slots)
     radii = slot_radii(model, scene.num_slots)
-    seconds = cfg.bin.settle_seconds if "bin" in scene.fixtures else cfg.init.settle_seconds
-    nstep = int(round(seconds / model.opt.timestep))
+    seconds = cfg.bin.settle_seconds if in_bin else cfg.init.settle_seconds
     full = mujoco.mjtState.mjSTATE_FULLPHYSICS
     nstate = mujoco.mj_stateSize(model, full)
     rng = np.random.default_rng(seed)
@@ -136,14 +159,17 @@ def drop_and_settle(
         pose = _drop_poses(cfg, scene, radii, n, rng)
         columns = 1 + address[:, None] + np.arange(7)  # qpos starts after the time
         state[:, columns] = pose
-        with rollout.Rollout(nthread=0) as runner:
-            out, _ = runner.rollout(model, [data], state, nstep=nstep)
-        final = out[:, -1]
-        good = _accepted(cfg, scene, model, final, address)
-        kept.extend(final[good][:, columns])
+        for phase_model, share in phases:
+            nstep = max(1, int(round(share * seconds / model.opt.timestep)))
+            phase_data = mujoco.MjData(phase_model)
+            with rollout.Rollout(nthread=0) as runner:
+                out, _ = runner.rollout(phase_model, [phase_data], state, nstep=nstep)
+            state = out[:, -1].copy()
+        good = _accepted(cfg, scene, model, state, address)
+        kept.extend(state[good][:, columns])
         if len(kept) >= size:
             return np.stack(kept[:size])
-    where = "inside the bin" if "bin" in scene.fixtures else "on the table"
+    where = "inside the bin" if in_bin else "on the table"
     names = ", ".join(Path(x).stem for x in xmls)
     raise TrainerError(
         f"{names}: fewer than {size} drops came to rest {where} in {MAX_ATTEMPTS} attempts; check "

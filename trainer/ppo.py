@@ -151,14 +151,15 @@ def train(
         cfg.env.device, f"device {cfg.env.device!r} of {run.path}",
         "resume it where that device exists" if resume else "train with --device cpu",
     )
-    run.path.mkdir(parents=True, exist_ok=True)
-    with atomic_path(run.config) as tmp:
-        tmp.write_text(json.dumps(config_dict(cfg), indent=2))
-
     torch.set_num_threads(cfg.run.torch_threads)
     torch.manual_seed(cfg.run.seed)
     ppo = cfg.ppo
+    # The env first: a config it refuses (a bin larger than the object set, a missing object)
+    # leaves no run directory behind that a corrected rerun would have to --overwrite.
     env = make_env(cfg.env, seed=cfg.run.seed)
+    run.path.mkdir(parents=True, exist_ok=True)
+    with atomic_path(run.config) as tmp:
+        tmp.write_text(json.dumps(config_dict(cfg), indent=2))
     device = env.device
     agent = Agent(env.observation_spec, ppo).to(device)
     optimizer = torch.optim.Adam(agent.parameters(), lr=ppo.lr)
