@@ -182,7 +182,7 @@ class EnvConfig(_Checked):
     task: str = bounded("lift", choices=tuple(TASKS))
     """``lift``: one object on the table, lift it by h_bar. ``bin``: lift a given target out of
     a bin of ``[bin] num_objects`` objects."""
-    representation: str = bounded("", choices=("", *REPRESENTATIONS))
+    representation: str = bounded("", choices=REPRESENTATIONS)
     """How the policy sees the object (the target in ``bin``); empty: the task's default
     (``TASKS``: sq for lift, bbox for bin)."""
     context: str = bounded("none", choices=CONTEXTS)
@@ -214,9 +214,9 @@ class EnvConfig(_Checked):
     bin: BinConfig = field(default_factory=BinConfig)
 
     def __post_init__(self) -> None:
-        super().__post_init__()
-        if not self.representation:
+        if not self.representation and self.task in TASKS:
             object.__setattr__(self, "representation", TASKS[self.task])
+        super().__post_init__()
         if self.context != "none" and self.task != "bin":
             raise TrainerError(
                 f"context = {self.context!r}: only the bin task has other objects to see; "
