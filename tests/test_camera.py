@@ -1,4 +1,5 @@
-"""trainer.camera: the tracking camera keeps every sphere in the image and moves smoothly."""
+"""trainer.camera: the tracking camera keeps every sphere in the image and moves smoothly; and
+what ``trainer.video`` frames in a task scene (hand, slots, bin), found by name, not body order."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import math
 
 import numpy as np
 
+from geomprep.config import Config
 from trainer.camera import CameraView, TrackingCamera, forward_vector
 
 FOVY, ASPECT, DT = 45.0, 4 / 3, 1 / 30
@@ -89,3 +91,51 @@ def test_zooms_in_gradually_and_out_at_once() -> None:
     assert all(b <= a for a, b in zip(steps, steps[1:], strict=False))
     assert steps[-1] < 0.6 * wide
     assert camera.update(*far).distance >= wide  # out at once: the hand stays in view
+
+
+def test_scene_parts_found_by_name_and_the_bin_framed_by_its_corners(builtin_data: Config) -> None:
+    """In a bin scene the hand, each slot's object and the bin are disjoint sets of geoms
+    (slot k: exactly the geoms named ``slot{k}/...``, whatever the body order); the bin's box
+    corners are its extreme points, a camera fed them and the hand sees all of them, and frames
+    the bin from closer than the boxes' bounding spheres would allow."""
+    import mujoco
+
+    from trainer.assets.scene import Scene, build_scene
+    from trainer.config import load_env_config
+    from trainer.video import bin_geoms, box_corners, hand_geoms, slot_geoms
+
+    cfg = load_env_config(task="bin", data_dir=builtin_data.data_dir)
+    processed = builtin_data.data_dir / "processed"
+    xmls = [processed / n / f"{n}.xml" for n in ("builtin_mug", "builtin_box", "builtin_sphere")]
+    model = build_scene(cfg, Scene(("table", "bin"), len(xmls)), xmls).compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    names = [model.geom(g).name for g in range(model.ngeom)]
+    hand, box = hand_geoms(model), bin_geoms(model)
+    slots = [slot_geoms(model, k) for k in range(len(xmls))]
+    for k, geoms in enumerate(slots):
+        assert sorted(geoms) == [g for g, n in enumerate(names) if n.startswith(f"slot{k}/")]
+    assert sorted(names[g] for g in box) == sorted(
+        ["bin_floor", "bin_wall_x+", "bin_wall_x-", "bin_wall_y+", "bin_wall_y-"]
+    )
+    parts = [hand, box, *slots]
+    assert sum(len(p) for p in parts) == len(np.unique(np.concatenate(parts)))
+    assert len(hand) > 0 and not np.isin(hand, np.concatenate([box, *slots])).any()
+
+    corners = box_corners(model, data, box)
+    hx, hy = cfg.bin.inner_half_size
+    t = cfg.bin.wall_thickness
+    assert np.allclose(corners.max(axis=0), [hx + t, hy + t, cfg.bin.wall_height])
+    assert np.allclose(corners.min(axis=0), [-hx - t, -hy - t, -t])
+
+    camera = TrackingCamera(FOVY, ASPECT, DT)
+    centers = np.concatenate([data.geom_xpos[hand], corners])
+    radii = np.concatenate([model.geom_rbound[hand], np.zeros(len(corners))])
+    assert_in_image(camera.update(centers, radii), centers, radii)
+    # The bin alone: its corners 0.71x the distance its boxes' bounding spheres need.
+    zeros = np.zeros(len(corners))
+    by_corners = TrackingCamera(FOVY, ASPECT, DT).update(corners, zeros)
+    by_spheres = TrackingCamera(FOVY, ASPECT, DT).update(
+        data.geom_xpos[box], model.geom_rbound[box]
+    )
+    assert by_corners.distance < 0.8 * by_spheres.distance

@@ -14,12 +14,13 @@ import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
+from tensordict import TensorDict
 
 from geomprep.config import Config
 from tests.conftest import build_ycb
 from trainer.config import load_env_config
-from trainer.env import GraspEnv
 from trainer.scripted import ScriptedGrasp, run_scripted_grasp
+from trainer.tasks import make_env
 
 GRASP_OBJECTS = ("077_rubiks_cube", "013_apple", "005_tomato_soup_can")
 TRIALS = 10
@@ -35,9 +36,9 @@ def lifted_per_object(data_dir: Path, names: tuple[str, ...], seed: int) -> dict
         num_envs=TRIALS * len(names), objects=",".join(names), data_dir=data_dir,
         representation="com",
     )
-    env = GraspEnv(cfg, seed=seed)
+    env = make_env(cfg, seed=seed)
     lifted = run_scripted_grasp(env).numpy()
-    ids = env.env_object.numpy()
+    ids = env.target_objects().numpy()
     env.close()
     return {name: int(lifted[ids == k].sum()) for k, name in enumerate(names)}
 
@@ -56,7 +57,7 @@ def test_scripted_grasp_lifts_builtin_objects(builtin_data: Config) -> None:
 def test_scripted_grasp_fails_without_closing(builtin_data: Config) -> None:
     """The success flag is earned: an open hand lifts nothing."""
     cfg = load_env_config(num_envs=4, objects="builtin_cylinder", data_dir=builtin_data.data_dir)
-    env = GraspEnv(dataclasses.replace(cfg, representation="com"), seed=3)
+    env = make_env(dataclasses.replace(cfg, representation="com"), seed=3)
     script = ScriptedGrasp(thumb_closed=ScriptedGrasp().thumb_open)
     env.hand_closed = env.hand_open.clone()  # "closing" commands the open hand
     lifted = run_scripted_grasp(env, script)
@@ -107,22 +108,27 @@ def _tile_segmentation(recorder, k: int) -> np.ndarray:  # noqa: ANN001
     return np.where(seg[..., 1] == mujoco.mjtObj.mjOBJ_GEOM, seg[..., 0], -1)
 
 
-def _assert_framed(recorder, min_fill: float = 0.0) -> None:  # noqa: ANN001
-    """In every tile the hand and the object are visible and wholly inside the image (their
-    pixels never touch its border), and together cover at least ``min_fill`` of it. (The
-    scene's fixed ``front`` camera fills 1.3-1.9 % with them: a small hand far away.)"""
-    from trainer.video import hand_geoms, object_geoms
-
-    for k, model in enumerate(recorder.models):
+def _assert_framed(
+    recorder, min_fill: float = 0.0, where: object = None,  # noqa: ANN001
+    visible: tuple[str, ...] = ("hand", "target", "bin"),
+) -> None:
+    """In every tile the parts the camera frames (hand and target; with a bin also the bin and
+    the other objects) are wholly inside the image (their pixels never touch its border), the
+    ``visible`` parts are seen (in a bin the target may lie under other objects), and hand and
+    target together cover at least ``min_fill`` of it. (The scene's fixed ``front`` camera fills
+    1.3-1.9 % with them: a small hand far away.) ``where``: named in the failure."""
+    for k in range(len(recorder.models)):
         seg = _tile_segmentation(recorder, k)
         fill = 0.0
-        for part, geoms in (("hand", hand_geoms(model)), ("object", object_geoms(model))):
+        for part, geoms in recorder.framed_parts(k).items():
             mask = np.isin(seg, geoms)
             border = np.concatenate([mask[0], mask[-1], mask[:, 0], mask[:, -1]])
-            assert mask.sum() > 0.002 * mask.size, (k, part, "not visible")
-            assert not border.any(), (k, part, "cut by the image border")
-            fill += mask.mean()
-        assert fill >= min_fill, (k, fill, "filmed from too far")
+            if part in visible:
+                assert mask.sum() > 0.002 * mask.size, (where, k, part, "not visible")
+            assert not border.any(), (where, k, part, "cut by the image border")
+            if part in ("hand", "target"):
+                fill += mask.mean()
+        assert fill >= min_fill, (where, k, fill, "filmed from too far")
 
 
 @pytest.mark.slow
@@ -137,7 +143,7 @@ def test_video_frames_hand_and_object_and_rolls_on_after_the_lift(builtin_data: 
         num_envs=2, objects=",".join(names), data_dir=builtin_data.data_dir,
         representation="com",
     )
-    env = GraspEnv(cfg, seed=0)
+    env = make_env(cfg, seed=0)
     recorder = EnvRecorder(env, [0, 1], width=160, height=120)
     script = ScriptedGrasp()
     hz = round(cfg.physics.control_hz)
@@ -145,7 +151,7 @@ def test_video_frames_hand_and_object_and_rolls_on_after_the_lift(builtin_data: 
 
     def on_step(step: int) -> None:
         recorder.capture()
-        lift = env.backend.qpos[:, env.obj_qpos + 2] - env.start_height
+        lift = env.target_pose()[0][:, 2] - env.state["start_height"]
         for k in range(2):
             if lift_frame[k] is None and bool(lift[k] >= env.h_bar):
                 lift_frame[k] = len(recorder.frames)
@@ -159,11 +165,102 @@ def test_video_frames_hand_and_object_and_rolls_on_after_the_lift(builtin_data: 
     assert lifted.all() and None not in lift_frame
     assert all(len(recorder.frames) - f >= hz for f in lift_frame)  # >= 1 s after the lift
 
-    count, steps, qpos = len(recorder.frames), env.step_count.clone(), env.backend.qpos.clone()
+    steps = env.state["step_count"].clone()
+    count, qpos = len(recorder.frames), env.backend.qpos.clone()
     recorder.capture_hold()
     assert len(recorder.frames) == count + hz  # 1 s more of simulated time...
     assert not torch.equal(env.backend.qpos, qpos)  # ...in which the simulation went on
-    assert bool((env.step_count == steps).all())  # the episode itself is over
+    assert bool((env.state["step_count"] == steps).all())  # the episode itself is over
     _assert_framed(recorder)
+    recorder.close()
+    env.close()
+
+
+def bin_env(data_dir: Path, num_envs: int, seed: int):  # noqa: ANN201
+    """A small bin-picking env: 5 built-in objects per bin, 2 layouts of 4 settled states."""
+    cfg = load_env_config(
+        num_envs=num_envs, task="bin", objects="builtin", data_dir=data_dir,
+        representation="bbox", bin={"num_objects": 5, "layouts": 2, "bank_size": 4},
+    )
+    return make_env(cfg, seed=seed)
+
+
+def slots_touched_by_hand(env, i: int) -> set[int]:  # noqa: ANN001
+    """The slots whose objects the hand of env ``i`` touches now."""
+    import mujoco
+
+    from trainer.video import hand_geoms, slot_geoms
+
+    model = env.backend.model_for_env(i)
+    data = mujoco.MjData(model)
+    data.qpos[:] = env.backend.qpos[i].double().numpy()
+    mujoco.mj_forward(model, data)
+    hand = set(hand_geoms(model).tolist())
+    slot_of = {int(g): k for k in range(env.scene.num_slots) for g in slot_geoms(model, k)}
+    touched = set()
+    for contact in data.contact[: data.ncon]:
+        for a, b in ((contact.geom1, contact.geom2), (contact.geom2, contact.geom1)):
+            if a in hand and b in slot_of:
+                touched.add(slot_of[b])
+    return touched
+
+
+def test_scripted_grasp_reaches_the_bin_target_from_above(builtin_data: Config) -> None:
+    """In a bin the script goes for the episode's target (not slot 0): after the approach the
+    hand hovers over the grasp pose on the target's box, then comes straight down until it
+    reaches that pose or rests on the clutter. (Picking from clutter is not asked of it.)"""
+    from trainer.scripted import grasp_frame, scripted_action
+
+    env = bin_env(builtin_data.data_dir, num_envs=4, seed=5)
+    script = ScriptedGrasp()
+    env.reset()
+    assert len(set(env.state["target_slot"].tolist())) > 1  # not always the same slot
+    center, half_height, _ = grasp_frame(env)
+    plan: dict = {}
+    for step in range(script.approach_steps + script.descend_steps):
+        action = scripted_action(env, script, step, plan)
+        env.step(TensorDict({"action": action}, batch_size=env.batch_size))
+        offset = env.state["palm_pos"] - plan["goal"]
+        if step == script.approach_steps - 1:  # hovering over the grasp pose
+            assert bool((offset[:, :2].norm(dim=-1) < 0.03).all()), offset
+            assert bool(((offset[:, 2] - script.hover).abs() < 0.03).all()), offset
+        if step >= script.approach_steps:  # straight down: no sideways drift
+            assert bool((offset[:, :2].norm(dim=-1) < 0.03).all()), (step, offset)
+    offset = env.state["palm_pos"] - plan["goal"]
+    for i in range(env.num_envs):
+        # Down at the grasp pose, or stopped on objects (the target's top or its neighbours).
+        assert offset[i, 2] < 0.5 * script.hover or slots_touched_by_hand(env, i), (i, offset)
+    assert bool((env.state["palm_pos"][:, 2] > center[:, 2] + half_height).all())
+    env.close()
+
+
+@pytest.mark.slow
+def test_video_of_a_bin_frames_hand_bin_and_target(builtin_data: Config) -> None:
+    """With a bin the tracking camera keeps the hand, the whole bin, the target and the other
+    objects in frame, and follows the target when a new episode draws another one. (Only the
+    hand and the bin must be seen: the target may lie under the clutter or the hand.)"""
+    from trainer.video import EnvRecorder, slot_geoms
+
+    env = bin_env(builtin_data.data_dir, num_envs=2, seed=2)
+    recorder = EnvRecorder(env, [0, 1], width=160, height=120)
+    script = ScriptedGrasp()
+
+    def on_step(step: int) -> None:
+        recorder.capture()
+        if step in (0, script.approach_steps + script.descend_steps, script.total_steps - 1):
+            _assert_framed(recorder, where=step, visible=("hand", "bin"))
+
+    run_scripted_grasp(env, script, on_step)
+    before = env.state["target_slot"][0].item()
+    for _ in range(30):  # new episodes until env 0 has another target
+        env.reset()
+        if env.state["target_slot"][0].item() != before:
+            break
+    after = env.state["target_slot"][0].item()
+    assert after != before
+    for _ in range(10):
+        recorder.capture()
+    assert np.array_equal(recorder.framed_parts(0)["target"], slot_geoms(recorder.models[0], after))
+    _assert_framed(recorder, where="new episode", visible=("hand", "bin"))
     recorder.close()
     env.close()

@@ -1,10 +1,13 @@
 """A scripted top-down grasp, batched over environments: proof that the physics and the hand
 can grasp at all, and the demo behind ``trainer demo``.
 
-Phases (in actions at 30 Hz): move above the object with the hand open and the thumb opposed,
-descend, close, lift, hold (1 s at the lift height, so that a video shows what happens to the
-object after the lift rather than ending on it). The hand turns about the vertical so that it
-squeezes the object across its narrowest horizontal width (from the object's bounding box).
+Phases (in actions at 30 Hz): move above the env's target object (``GraspTask.target_pose``:
+the one object of ``lift``, the episode's target in a ``bin``) with the hand open and the thumb
+opposed, descend onto its bounding box from above, close, lift, hold (1 s at the lift height, so
+that a video shows what happens to the object after the lift rather than ending on it). The hand
+turns about the vertical so that it squeezes the target across its narrowest horizontal width
+(from its bounding box). In a bin the script ignores the other objects: it shows that the hand
+reaches the target, not that it picks well from clutter.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from tensordict import TensorDict
 
 from geomprep.rotations import matrix_to_axis_angle, quat_to_matrix
 from trainer import constants as C
-from trainer.env import GraspEnv
+from trainer.tasks import GraspTask
 
 
 @dataclass(frozen=True)
@@ -64,31 +67,31 @@ class ScriptedGrasp:
         )
 
 
-def grasp_frame(env: GraspEnv) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Per env: object bbox centre (E, 3) and half-height (E,) in the world, and the palm-down
-    rotation (E, 3, 3) whose finger axis lies across the object's narrowest horizontal width."""
-    qpos = env.backend.qpos
-    obj_pos = qpos[:, env.obj_qpos : env.obj_qpos + 3]
-    rot = quat_to_matrix(qpos[:, env.obj_qpos + 3 : env.obj_qpos + 7])
-    ids = env.env_object
+def grasp_frame(env: GraspTask) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Per env: the target's bbox centre (E, 3) and half-height (E,) in the world, and the
+    palm-down rotation (E, 3, 3) whose finger axis lies across the target's narrowest
+    horizontal width."""
+    obj_pos, obj_quat = env.target_pose()
+    rot = quat_to_matrix(obj_quat)
+    ids = env.target_objects()
     center = obj_pos + (rot @ env.objects.bbox_center[ids][..., None])[..., 0]
     axes = rot @ env.objects.bbox_rotation[ids]  # (E, 3, 3) box axes as columns
     half = 0.5 * env.objects.bbox_extents[ids]  # (E, 3)
     half_height = (axes[:, 2, :].abs() * half).sum(-1)
-    angles = torch.linspace(0, math.pi, 13, device=qpos.device)[:-1]
+    angles = torch.linspace(0, math.pi, 13, device=obj_pos.device)[:-1]
     dirs = torch.stack([angles.cos(), angles.sin(), torch.zeros_like(angles)], -1)  # (A, 3)
     width = ((dirs @ axes).abs() * half[:, None, :]).sum(-1)  # (E, A)
     finger = dirs[width.argmin(-1)]
     # Of the two signs, take the one nearer the home direction (-y): less wrist turning.
     home_finger = env.home_rot[:, 2]
     finger = torch.where(((finger @ home_finger) < 0)[:, None], -finger, finger)
-    down = torch.tensor([0.0, 0.0, -1.0], device=qpos.device).expand_as(finger)
+    down = torch.tensor([0.0, 0.0, -1.0], device=obj_pos.device).expand_as(finger)
     palm_x = torch.linalg.cross(down, finger, dim=-1)
     palm_rot = torch.stack([palm_x, down, finger], dim=-1)
     return center, half_height, palm_rot
 
 
-def scripted_action(env: GraspEnv, script: ScriptedGrasp, step: int, plan: dict) -> torch.Tensor:
+def scripted_action(env: GraspTask, script: ScriptedGrasp, step: int, plan: dict) -> torch.Tensor:
     """The action (E, 11) for every env at episode step ``step``; ``plan`` holds the grasp
     frame computed at step 0."""
     if step == 0:
@@ -127,19 +130,21 @@ def scripted_action(env: GraspEnv, script: ScriptedGrasp, step: int, plan: dict)
     robot = env.cfg.robot
     lifting = t >= script.approach_steps + script.descend_steps + script.close_steps
     rate = script.lift_rate if lifting else 1.0
-    move = ((goal - env.target_pos) / robot.pos_step).clamp(-rate, rate)
-    turn = matrix_to_axis_angle(plan["rot"] @ env.target_rot.transpose(1, 2)) / robot.rot_step
+    command_pos, command_rot = env.state["target_pos"], env.state["target_rot"]
+    move = ((goal - command_pos) / robot.pos_step).clamp(-rate, rate)
+    turn = matrix_to_axis_angle(plan["rot"] @ command_rot.transpose(1, 2)) / robot.rot_step
     turn = turn.clamp(-1.0, 1.0)
     return torch.cat([move, turn, hand], dim=-1)
 
 
 def run_scripted_grasp(
-    env: GraspEnv,
+    env: GraspTask,
     script: ScriptedGrasp | None = None,
     on_step: Callable[[int], None] | None = None,
 ) -> torch.Tensor:
-    """Reset every env, run the script; return (E,) bool: the object was lifted by h_bar at
-    some step. ``on_step(step)`` is called after every action (e.g. to render a frame)."""
+    """Reset every env, run the script; return (E,) bool: the target was lifted by h_bar at
+    some step (the env's ``success``). ``on_step(step)`` is called after every action (e.g. to
+    render a frame)."""
     script = script or ScriptedGrasp()
     env.reset()
     plan: dict = {}

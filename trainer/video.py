@@ -5,9 +5,14 @@ sets ``MUJOCO_GL=egl`` before importing anything (EGL renders without a display;
 the software fallback). Videos: ``.mp4`` (H.264 through the ffmpeg binary of imageio-ffmpeg) or
 ``.gif`` (Pillow).
 
-By default each tile is filmed by a ``TrackingCamera`` that keeps the hand and the object in
-frame; ``EnvRecorder.capture_hold`` keeps the simulation rolling after the episode so that the
-video does not stop on the very frame the object is lifted.
+By default each tile is filmed by a ``TrackingCamera`` that keeps the hand and the env's target
+object in frame (in a scene with a bin: the hand, the whole bin and every object still on the
+table, so that the clutter is visible); ``EnvRecorder.capture_hold`` keeps the simulation rolling
+after the episode so that the video does not stop on the very frame the object is lifted.
+
+Objects are found by their slot body (``trainer.assets.scene.slot_name``), the bin by its geoms'
+names (``bin_floor``, ``bin_wall_x+``, ...), the hand as the subtree of the ``palm`` body: never
+by body order.
 """
 
 from __future__ import annotations
@@ -19,9 +24,10 @@ import mujoco
 import numpy as np
 
 from geomprep.store import atomic_path
+from trainer.assets.scene import slot_name
 from trainer.camera import CameraView, TrackingCamera
-from trainer.env import GraspEnv
 from trainer.errors import TrainerError
+from trainer.tasks import GraspTask
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 TAIL_SECONDS = 1.0
@@ -29,16 +35,19 @@ TAIL_SECONDS = 1.0
 
 
 class EnvRecorder:
-    """Renders chosen environments of a ``GraspEnv`` side by side, one frame per ``capture``.
+    """Renders chosen environments of a task (``trainer.tasks.make_env``) side by side, one frame
+    per ``capture``.
 
     env_ids: which environments (one tile each, left to right); width, height: pixels per tile;
-    camera: None (default) for a tracking camera per tile that keeps the hand and the object in
-    view (``trainer.camera``), or the name of a fixed camera of the scene (``front``).
+    camera: None (default) for a tracking camera per tile (``trainer.camera``) that keeps in view
+    the hand and the env's current target object, re-read at every frame since each episode may
+    have another target; in a scene with a bin, the hand, the bin and every object still on the
+    table. Or the name of a fixed camera of the scene (``front``).
     """
 
     def __init__(
         self,
-        env: GraspEnv,
+        env: GraspTask,
         env_ids: Sequence[int],
         width: int = 480,
         height: int = 360,
@@ -46,8 +55,7 @@ class EnvRecorder:
     ) -> None:
         self.env = env
         self.env_ids = [int(i) for i in env_ids]
-        backend = env.backend
-        self.models = [backend.models[backend.env_model[i]] for i in self.env_ids]
+        self.models = [env.backend.model_for_env(i) for i in self.env_ids]
         self.datas = [mujoco.MjData(m) for m in self.models]
         try:
             self._renderers = [mujoco.Renderer(m, height, width) for m in self.models]
@@ -61,14 +69,25 @@ class EnvRecorder:
         self.trackers = [
             TrackingCamera(float(m.vis.global_.fovy), width / height, dt) for m in self.models
         ]
-        self._framed = [framed_geoms(m) for m in self.models]
+        self.with_bin = "bin" in env.scene.fixtures
+        slots = range(env.scene.num_slots)
+        self._hand = [hand_geoms(m) for m in self.models]
+        self._bin = [bin_geoms(m) if self.with_bin else np.zeros(0, int) for m in self.models]
+        self._slot_geoms = [[slot_geoms(m, s) for s in slots] for m in self.models]
+        self._slot_bodies = [[m.body(slot_name(s)).id for s in slots] for m in self.models]
+        self._targets = self._read_targets()
         self.frames: list[np.ndarray] = []
+
+    def _read_targets(self) -> list[int]:
+        target_slot = self.env.state["target_slot"].detach().cpu()
+        return [int(target_slot[i]) for i in self.env_ids]
 
     def capture(self) -> np.ndarray:
         """Render the current state of every chosen env; returns and keeps the (H, W·n, 3)
         uint8 frame."""
         qpos = self.env.backend.qpos.detach().cpu().double().numpy()
         mocap_pos, mocap_quat = self.env.mocap_targets()
+        self._targets = self._read_targets()
         tiles = []
         for k, i in enumerate(self.env_ids):
             model, data, renderer = self.models[k], self.datas[k], self._renderers[k]
@@ -83,25 +102,51 @@ class EnvRecorder:
         self.frames.append(frame)
         return frame
 
+    def framed_parts(self, k: int) -> dict[str, np.ndarray]:
+        """Geom ids the tracking camera of tile ``k`` keeps in view, by part, for the state now
+        in its MjData (as of the last ``capture``): ``hand``, ``target`` (the env's target
+        object) and, with a bin, ``bin`` and ``clutter`` (the other objects still above
+        ``fall_height``: one that fell off the table is let go rather than zoomed out to)."""
+        target = self._targets[k]
+        parts = {"hand": self._hand[k], "target": self._slot_geoms[k][target]}
+        if self.with_bin:
+            height = self.datas[k].xpos[self._slot_bodies[k], 2]
+            on_table = [
+                s for s, z in enumerate(height) if s != target and z > self.env.cfg.fall_height
+            ]
+            parts["bin"] = self._bin[k]
+            parts["clutter"] = np.concatenate(
+                [np.zeros(0, int)] + [self._slot_geoms[k][s] for s in on_table]
+            )
+        return parts
+
     def camera_for(self, k: int) -> mujoco.MjvCamera | str:
         """The camera of tile ``k`` for the state now in its MjData: the fixed scene camera, or
         the tracking camera moved on by one frame."""
         if self.camera:
             return self.camera
-        geoms = self._framed[k]
-        data = self.datas[k]
-        view = self.trackers[k].update(data.geom_xpos[geoms], self.models[k].geom_rbound[geoms])
+        parts = self.framed_parts(k)
+        model, data = self.models[k], self.datas[k]
+        geoms = np.concatenate([g for part, g in parts.items() if part != "bin"])
+        centers, radii = data.geom_xpos[geoms], model.geom_rbound[geoms]
+        if "bin" in parts:
+            # The bin's boxes by their corners: their bounding spheres reach far past the thin
+            # walls and floor and would film the bin from ~1.4 times as far.
+            corners = box_corners(model, data, parts["bin"])
+            centers = np.concatenate([centers, corners])
+            radii = np.concatenate([radii, np.zeros(len(corners))])
+        view = self.trackers[k].update(centers, radii)
         return mjv_camera(view)
 
     def capture_hold(self, seconds: float = TAIL_SECONDS) -> None:
         """Keep the simulation rolling for ``seconds`` after the episodes, holding the last
         commands (the hand keeps its grip, the arm its pose), one frame per control period.
 
-        Steps the backend directly: the episodes are over, so nothing (observations, step
-        counts, rewards) is updated on the env; use it last, before ``save``."""
+        Uses ``env.hold()``: the episodes are over, so nothing (observations, step counts,
+        rewards, targets) is updated on the env; use it last, before ``save``."""
         env = self.env
         for _ in range(round(seconds * env.cfg.physics.control_hz)):
-            env.backend.step(env.ctrl, *env.mocap_targets())
+            env.hold()
             self.capture()
 
     def save(self, path: str | Path, fps: float) -> Path:
@@ -124,24 +169,38 @@ def mjv_camera(view: CameraView) -> mujoco.MjvCamera:
     return cam
 
 
-def hand_geoms(model: mujoco.MjModel) -> np.ndarray:
-    """Geom ids (K,) of the hand: the ``palm`` body and every body below it."""
-    palm = model.body("palm").id
-    hand = np.zeros(model.nbody, dtype=bool)
+def subtree_geoms(model: mujoco.MjModel, root: int) -> np.ndarray:
+    """Geom ids of body ``root`` and every body below it."""
+    inside = np.zeros(model.nbody, dtype=bool)
     for body in range(model.nbody):
         # Parents come before children in MuJoCo's body order, so one pass marks the subtree.
-        hand[body] = body == palm or (body > 0 and hand[model.body_parentid[body]])
-    return np.flatnonzero(hand[model.geom_bodyid])
+        inside[body] = body == root or (body > 0 and inside[model.body_parentid[body]])
+    return np.flatnonzero(inside[model.geom_bodyid])
 
 
-def object_geoms(model: mujoco.MjModel) -> np.ndarray:
-    """Geom ids (K,) of the object (the last body, as in ``GraspEnv``)."""
-    return np.flatnonzero(model.geom_bodyid == model.nbody - 1)
+def hand_geoms(model: mujoco.MjModel) -> np.ndarray:
+    """Geom ids of the hand: the ``palm`` body and every body below it."""
+    return subtree_geoms(model, model.body("palm").id)
 
 
-def framed_geoms(model: mujoco.MjModel) -> np.ndarray:
-    """Geom ids (K,) the tracking camera keeps in view: the hand's and the object's."""
-    return np.concatenate([hand_geoms(model), object_geoms(model)])
+def slot_geoms(model: mujoco.MjModel, slot: int) -> np.ndarray:
+    """Geom ids of the object in slot ``slot`` (its body ``slot{k}`` and anything below it)."""
+    return subtree_geoms(model, model.body(slot_name(slot)).id)
+
+
+def bin_geoms(model: mujoco.MjModel) -> np.ndarray:
+    """Geom ids of the bin fixture (``bin_floor``, ``bin_wall_*``); empty without a bin."""
+    names = (model.geom(g).name for g in range(model.ngeom))
+    return np.array([g for g, name in enumerate(names) if name.startswith("bin_")], dtype=int)
+
+
+def box_corners(model: mujoco.MjModel, data: mujoco.MjData, geoms: np.ndarray) -> np.ndarray:
+    """World positions (8·n, 3) of the corners of the box geoms ``geoms`` (n,) in ``data``."""
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    local = signs[None, :, :] * model.geom_size[geoms][:, None, :]  # (n, 8, 3)
+    rot = data.geom_xmat[geoms].reshape(-1, 3, 3)
+    world = data.geom_xpos[geoms][:, None, :] + local @ rot.transpose(0, 2, 1)
+    return world.reshape(-1, 3)
 
 
 def write_video(path: str | Path, frames: Sequence[np.ndarray], fps: float) -> Path:
