@@ -1,78 +1,210 @@
-"""Environment steps per second of ``GraspEnv`` next to raw MuJoCo stepping of the same models.
+"""Environment steps per second of the tasks (``trainer.tasks.make_env``) next to physics-only
+stepping of the same models, lift and bin picking in one run; and what a bin costs to build and
+hold in memory.
 
-For each env count and representation: the full env step (JT control in torch, batched physics,
-observations, reward), and in the same run the backend stepping the same models with the same
-substeps and held controls and nothing else. Prints both and the ratio (target >= 0.70).
+1. Throughput. For each task, env count and representation: the full env step (JT control in
+   torch, batched physics, observations, reward, resets of finished envs), and in the same run
+   the backend's ``step_held`` (the same models, substeps and held controls, nothing else).
+   Prints both and their ratio (target >= 0.70), then bin / lift env steps/s at each env count
+   (issue target: >= 0.50 at 256 envs). The tasks' envs are timed in alternating blocks.
+2. Build cost and memory of a bin env (default: 256 envs, ``[bin] layouts`` random bins of 10
+   objects from ``--memory-objects``): seconds to build the env (first build, which may settle
+   and cache the layouts' initial states, then a second, cached build) and the backend alone
+   (``trainer.sim.make_backend``: model compilation and state allocation); the MjModel and MjData
+   buffers (``model.nbuffer``, ``MjData(model).nbuffer`` and its reserved ``narena``) summed over
+   the layouts; the backend's state (``state_dict``: what a checkpoint holds) and the
+   initial-state banks; and how much the process's resident memory grew in the first build.
 
-    python bench/env_throughput.py [--envs 64,256,1024] [--reprs com,sdf,...] [--objects builtin]
-                                   [--no-compile]
+    python bench/env_throughput.py [--tasks lift,bin] [--envs 256] [--reprs default|com,sdf,...]
+                                   [--objects builtin] [--bin-objects 5] [--no-compile]
+                                   [--memory-objects ycb] [--memory-bin-objects 10] [--no-memory]
+
+``--reprs default`` (the default) uses each task's own representation (``trainer.config.TASKS``:
+sq for lift, bbox for bin).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import statistics
 import time
 
+import mujoco
+import numpy as np
 import torch
 
-from trainer.config import REPRESENTATIONS, load_env_config
-from trainer.env import GraspEnv
+from trainer.config import EnvConfig, load_env_config
+from trainer.sim import make_backend
+from trainer.tasks import GraspTask, make_env
 
 
-def measure(env: GraspEnv, steps: int, rounds: int) -> tuple[float, float]:
-    """(env steps/s, raw steps/s), each env step = one action of every env.
+class Stepper:
+    """Times one env: blocks of ``steps`` env steps (each one action of every env, then the
+    resets of the finished envs, as a collector does) and of ``steps`` physics-only steps."""
 
-    Env and raw stepping alternate in ``rounds`` blocks of ``steps`` each, and each rate is the
-    median over its blocks, so that a slow moment of the machine hits both alike."""
-    td = env.reset()
-    gen = torch.Generator().manual_seed(0)
-    actions = [torch.rand(env.num_envs, 11, generator=gen) * 2 - 1 for _ in range(steps)]
-    for action in actions[:3]:  # warm-up (and compilation, with --compile)
-        td["action"] = action
-        _, td = env.step_and_maybe_reset(td)
-    env_rates, raw_rates = [], []
-    for _ in range(rounds):
+    def __init__(self, env: GraspTask, steps: int) -> None:
+        self.env = env
+        gen = torch.Generator().manual_seed(0)
+        self.actions = [
+            (torch.rand(env.num_envs, 11, generator=gen) * 2 - 1).to(env.device)
+            for _ in range(steps)
+        ]
+        self.td = env.reset()
+        for action in self.actions[:3]:  # warm-up (and compilation, with --compile)
+            self.td["action"] = action
+            _, self.td = env.step_and_maybe_reset(self.td)
+        self.env_rates: list[float] = []
+        self.raw_rates: list[float] = []
+
+    def block(self) -> None:
+        env, steps = self.env, len(self.actions)
         start = time.perf_counter()
-        for action in actions:
-            # What a collector does: step, then reset the envs that are done.
-            td["action"] = action
-            _, td = env.step_and_maybe_reset(td)
-        env_rates.append(env.num_envs * steps / (time.perf_counter() - start))
+        for action in self.actions:
+            self.td["action"] = action
+            _, self.td = env.step_and_maybe_reset(self.td)
+        self.env_rates.append(env.num_envs * steps / (time.perf_counter() - start))
         start = time.perf_counter()
         for _ in range(steps):
-            env.backend.raw_step()
-        raw_rates.append(env.num_envs * steps / (time.perf_counter() - start))
-    return statistics.median(env_rates), statistics.median(raw_rates)
+            env.backend.step_held()
+        self.raw_rates.append(env.num_envs * steps / (time.perf_counter() - start))
+
+
+def task_config(args: argparse.Namespace, task: str, envs: int, rep: str, objects: str,
+                bin_objects: int) -> EnvConfig:
+    overrides: dict = {"task": task, "num_envs": envs, "objects": objects,
+                       "compile": args.compile, "robot": {"kind": args.robot}}
+    if rep != "default":
+        overrides["representation"] = rep
+    if task == "bin":
+        overrides["bin"] = {"num_objects": bin_objects}
+    if args.data_dir:
+        overrides["data_dir"] = args.data_dir
+    return load_env_config(**overrides)
+
+
+def throughput(args: argparse.Namespace) -> None:
+    """All tasks' envs of one env count and representation are built together and timed in
+    alternating blocks (``--rounds`` of each), each rate the median over its blocks, so that a
+    slow moment of the machine hits every task and the physics-only baseline alike."""
+    print(f"{'task':>5} {'envs':>6} {'repr':>6} {'env steps/s':>12} {'phys steps/s':>13} "
+          f"{'ratio':>6}")
+    for n in (int(v) for v in args.envs.split(",")):
+        for rep in args.reprs.split(","):
+            steppers = {}
+            for task in args.tasks.split(","):
+                cfg = task_config(args, task, n, rep, args.objects, args.bin_objects)
+                steppers[task] = Stepper(make_env(cfg), args.steps)
+            for _ in range(args.rounds):
+                for stepper in steppers.values():
+                    stepper.block()
+            rates = {}
+            for task, stepper in steppers.items():
+                env_rate = statistics.median(stepper.env_rates)
+                raw_rate = statistics.median(stepper.raw_rates)
+                rates[task] = env_rate
+                print(f"{task:>5} {n:>6} {stepper.env.cfg.representation:>6} {env_rate:>12.0f} "
+                      f"{raw_rate:>13.0f} {env_rate / raw_rate:>6.2f}")
+                stepper.env.close()
+            if "bin" in steppers and "lift" in steppers:
+                # Median of the per-round ratios: the two blocks of a round ran back to back.
+                paired = statistics.median(
+                    b / a for a, b in zip(steppers["lift"].env_rates, steppers["bin"].env_rates,
+                                          strict=True)
+                )
+                print(f"bin ({args.bin_objects} objects) / lift env steps/s, {n} envs, repr "
+                      f"{rep}: {rates['bin'] / rates['lift']:.2f} (per-round median "
+                      f"{paired:.2f}; target >= 0.50)")
+
+
+def rss_bytes() -> int:
+    """Resident memory of this process (Linux)."""
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+def _nbytes(value: object) -> int:
+    if isinstance(value, dict):
+        return sum(_nbytes(v) for v in value.values())
+    if isinstance(value, torch.Tensor):
+        return value.numel() * value.element_size()
+    return int(getattr(value, "nbytes", 0))
+
+
+def build_cost(args: argparse.Namespace) -> None:
+    n, N = args.memory_envs, args.memory_bin_objects
+    cfg = task_config(args, "bin", n, "default", args.memory_objects, N)
+    cfg = dataclasses.replace(cfg, compile=False)
+    print(f"\nbin env of {n} envs, {cfg.bin.layouts} layouts of {N} objects "
+          f"({args.memory_objects}), CPU backend:")
+    rss = rss_bytes()
+    start = time.perf_counter()
+    env = make_env(cfg)
+    first = time.perf_counter() - start
+    grown = rss_bytes() - rss
+    env.close()
+    start = time.perf_counter()
+    env = make_env(cfg)
+    again = time.perf_counter() - start
+    L = len(env.layouts)
+    xmls = [[env.objects.xml_paths[k] for k in row] for row in env.layouts.tolist()]
+    start = time.perf_counter()
+    backend = make_backend(cfg, env.scene, xmls, env.env_layout.cpu().numpy(), "cpu")
+    backend_s = time.perf_counter() - start
+    backend.close()
+    firsts = [int(np.flatnonzero(env.env_layout.cpu().numpy() == k)[0]) for k in range(L)]
+    models = [env.backend.model_for_env(i) for i in firsts]
+    datas = [mujoco.MjData(m) for m in models]
+    model_bytes = sum(m.nbuffer for m in models)
+    data_bytes = sum(d.nbuffer for d in datas)
+    arena_bytes = sum(d.narena for d in datas)
+    state = _nbytes(env.backend.state_dict())
+    banks = _nbytes(env.banks)
+    m0 = models[0]
+    mib = 2.0**20
+    print(f"  build the env: first {first:.1f} s (settles and caches missing initial states), "
+          f"cached {again:.1f} s")
+    print(f"  backend alone (compile {L} models, allocate): {backend_s:.2f} s")
+    print(f"  per model: nq {m0.nq}, nv {m0.nv}, ngeom {m0.ngeom}, "
+          f"nbuffer {m0.nbuffer / mib:.2f} MiB, MjData {mujoco.MjData(m0).nbuffer / mib:.2f} MiB")
+    print(f"  MjModel buffers, {L} layouts: {model_bytes / mib:.1f} MiB")
+    print(f"  MjData buffers, one per layout: {data_bytes / mib:.1f} MiB, plus arenas (contacts, "
+          f"constraints; reserved, resident only as used) {arena_bytes / mib:.0f} MiB; the CPU "
+          "backend keeps one MjData per layout in each pool thread that steps it")
+    print(f"  backend state (state_dict) for {n} envs: {state / mib:.2f} MiB")
+    print(f"  initial-state banks: {banks / mib:.3f} MiB")
+    print(f"  total of the above: {(model_bytes + data_bytes + state + banks) / mib:.1f} MiB; "
+          f"process RSS grew {grown / mib:.0f} MiB in the first build")
+    env.close()
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--envs", default="64,256,1024")
-    parser.add_argument("--reprs", default=",".join(REPRESENTATIONS))
+    parser.add_argument("--tasks", default="lift,bin")
+    parser.add_argument("--envs", default="256")
+    parser.add_argument("--reprs", default="default",
+                        help="comma list; 'default': each task's own representation")
     parser.add_argument("--objects", default="builtin")
+    parser.add_argument("--bin-objects", type=int, default=5, help="objects per bin (throughput)")
     parser.add_argument("--robot", default="ur5e")
+    parser.add_argument("--data-dir", default=None, help="default: the config's data_dir")
     parser.add_argument("--steps", type=int, default=20, help="env steps per timed block")
-    parser.add_argument("--rounds", type=int, default=5, help="alternating env/raw blocks")
+    parser.add_argument("--rounds", type=int, default=5, help="alternating env/physics blocks")
     parser.add_argument(
         "--compile", action=argparse.BooleanOptionalAction, default=True,
         help="torch.compile the task computations (EnvConfig.compile)",
     )
+    parser.add_argument("--memory", action=argparse.BooleanOptionalAction, default=True,
+                        help="also measure a bin env's build time and memory")
+    parser.add_argument("--memory-envs", type=int, default=256)
+    parser.add_argument("--memory-objects", default="ycb")
+    parser.add_argument("--memory-bin-objects", type=int, default=10)
     args = parser.parse_args()
     torch.set_num_threads(1)
-    print(f"{'envs':>6} {'repr':>6} {'env steps/s':>12} {'raw steps/s':>12} {'ratio':>6}")
-    for n in (int(v) for v in args.envs.split(",")):
-        for rep in args.reprs.split(","):
-            cfg = load_env_config(num_envs=n, representation=rep, objects=args.objects)
-            cfg = dataclasses.replace(
-                cfg, robot=dataclasses.replace(cfg.robot, kind=args.robot), compile=args.compile
-            )
-            env = GraspEnv(cfg)
-            env_rate, raw_rate = measure(env, args.steps, args.rounds)
-            env.close()
-            ratio = env_rate / raw_rate
-            print(f"{n:>6} {rep:>6} {env_rate:>12.0f} {raw_rate:>12.0f} {ratio:>6.2f}")
+    throughput(args)
+    if args.memory:
+        build_cost(args)
 
 
 if __name__ == "__main__":

@@ -4,7 +4,10 @@ env-only: the collector stepping the environments with the (untrained) policy an
 training: the whole PPO iteration (collection, GAE, the minibatch epochs, normalizer updates,
 logging). Prints both and the ratio (target >= 0.50: learning must not dominate the cost).
 
-    python bench/ppo_throughput.py [--envs 64,256] [--repr com] [--iterations 5] [--no-compile]
+    python bench/ppo_throughput.py [--task lift|bin] [--envs 64,256] [--repr com]
+                                   [--bin-objects 5] [--iterations 5] [--no-compile]
+
+``--repr default`` uses the task's own representation (sq for lift, bbox for bin).
 """
 
 from __future__ import annotations
@@ -19,14 +22,14 @@ import torch
 from torchrl.collectors import Collector
 
 from trainer.config import load_train_config
-from trainer.env import GraspEnv
 from trainer.models import Agent
 from trainer.ppo import iteration_frames, train
+from trainer.tasks import make_env
 
 
 def env_only_rate(cfg, iterations: int) -> float:  # noqa: ANN001
-    env = GraspEnv(cfg.env, seed=cfg.run.seed)
-    agent = Agent(cfg.env.representation, cfg.ppo)
+    env = make_env(cfg.env, seed=cfg.run.seed)
+    agent = Agent(env.observation_spec, cfg.ppo)
     frames = iteration_frames(cfg)
     collector = Collector(env, agent.actor, frames_per_batch=frames, total_frames=-1,
                           auto_register_policy_transforms=False)
@@ -37,14 +40,17 @@ def env_only_rate(cfg, iterations: int) -> float:  # noqa: ANN001
         next(batches)
     rate = iterations * frames / (time.perf_counter() - start)
     collector.shutdown()
+    env.close()
     return rate
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--task", default="lift", choices=("lift", "bin"))
     parser.add_argument("--envs", default="64,256")
-    parser.add_argument("--repr", default="com")
+    parser.add_argument("--repr", default="com", help="'default': the task's own")
     parser.add_argument("--objects", default="builtin")
+    parser.add_argument("--bin-objects", type=int, default=5, help="objects per bin (bin task)")
     parser.add_argument("--iterations", type=int, default=5)
     parser.add_argument(
         "--compile", action=argparse.BooleanOptionalAction, default=True,
@@ -52,12 +58,18 @@ def main() -> None:
     )
     args = parser.parse_args()
     torch.set_num_threads(1)
-    print(f"{'envs':>6} {'repr':>6} {'train frames/s':>15} {'env-only frames/s':>18} {'ratio':>6}")
+    print(f"{'task':>5} {'envs':>6} {'repr':>6} {'train frames/s':>15} "
+          f"{'env-only frames/s':>18} {'ratio':>6}")
     for n in (int(v) for v in args.envs.split(",")):
+        env = {"task": args.task, "num_envs": n, "objects": args.objects, "compile": args.compile}
+        if args.repr != "default":
+            env["representation"] = args.repr
+        if args.task == "bin":
+            env["bin"] = {"num_objects": args.bin_objects}
+        frames = iteration_frames(load_train_config(env=env))
         cfg = load_train_config(
-            env={"num_envs": n, "representation": args.repr, "objects": args.objects,
-                 "compile": args.compile},
-            run={"total_steps": n * 32 * (args.iterations + 1), "checkpoint_every": 10**9},
+            env=env,
+            run={"total_steps": frames * (args.iterations + 1), "checkpoint_every": 10**9},
         )
         env_rate = env_only_rate(cfg, args.iterations)
         with tempfile.TemporaryDirectory() as tmp:
@@ -66,8 +78,8 @@ def main() -> None:
         # Skip the first iteration (set-up, first collector reset), as for env-only.
         seconds = float(rows[-1]["wall_time_s"]) - float(rows[0]["wall_time_s"])
         train_rate = (len(rows) - 1) * iteration_frames(cfg) / seconds
-        print(f"{n:>6} {args.repr:>6} {train_rate:>15.0f} {env_rate:>18.0f} "
-              f"{train_rate / env_rate:>6.2f}")
+        print(f"{args.task:>5} {n:>6} {cfg.env.representation:>6} {train_rate:>15.0f} "
+              f"{env_rate:>18.0f} {train_rate / env_rate:>6.2f}")
 
 
 if __name__ == "__main__":
