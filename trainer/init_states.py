@@ -31,7 +31,7 @@ from trainer.assets.scene import Scene, build_scene, slot_name, slot_qpos_addres
 from trainer.config import EnvConfig, config_dict
 from trainer.errors import TrainerError
 
-BANK_VERSION = 3
+BANK_VERSION = 4
 MAX_REST_SPEED = 0.02
 """An object moving faster than this (m/s) after settling is not at rest: drop it again."""
 MAX_ATTEMPTS = 20

@@ -121,8 +121,10 @@ def _add_table(spec: mujoco.MjSpec, physics: PhysicsConfig) -> None:
 
 
 def _add_bin(spec: mujoco.MjSpec, cfg: EnvConfig) -> None:
-    """A bin at the table centre: a thin floor (top at z = 0, on the table) and four walls
-    around an inside of ``2 * inner_half_size``."""
+    """A bin at the table centre: a floor (its top is the table top, z = 0) and four walls
+    around an inside of ``2 * inner_half_size``. The floor is drawn but does not collide: the
+    table under it is the same surface, and two coplanar supports would give every resting
+    object each of its contacts twice (half the bin's contacts, for nothing)."""
     b = cfg.bin
     hx, hy = b.inner_half_size
     t, h = b.wall_thickness, b.wall_height
@@ -141,9 +143,10 @@ def _add_bin(spec: mujoco.MjSpec, cfg: EnvConfig) -> None:
         geom.size = size
         geom.rgba = (0.45, 0.55, 0.7, 1.0)
         geom.friction = cfg.physics.table_friction
-        geom.contype = C.BIT_STATIC
-        geom.conaffinity = C.BIT_OBJECT | C.BIT_ARM | C.BIT_HAND
         geom.condim = cfg.physics.condim
+        collides = name != "bin_floor"
+        geom.contype = C.BIT_STATIC if collides else 0
+        geom.conaffinity = (C.BIT_OBJECT | C.BIT_ARM | C.BIT_HAND) if collides else 0
 
 
 def add_object(spec: mujoco.MjSpec, xml_path: Path, slot: int) -> str:
