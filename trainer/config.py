@@ -157,8 +157,9 @@ class BinConfig(_Checked):
     """Objects in the bin (the paper: 5 and 10), drawn without replacement from the object set."""
     layouts: int = bounded(16, ge=1)
     """Distinct bins (object draws) per run. Each is one compiled model on the CPU backend and
-    the envs share them round-robin: 16 models of 10 YCB objects cost ~0.1 s and ~10 MB each,
-    where one model per env would cost 256 of them at 256 envs."""
+    the envs share them round-robin: a 5-YCB-object model steps in ~1.5 MiB (its visual
+    meshes and textures, ~30 MiB, are only loaded for videos) and compiles in ~0.1 s, where
+    one model per env would mean 256 of them at 256 envs (bench/env_throughput.py --memory)."""
     bank_size: int = bounded(16, ge=1)
     """Settled clutter states per layout (each reset draws one, with a random quarter turn)."""
     inner_half_size: tuple[float, float] = bounded((0.2, 0.2), gt=0)

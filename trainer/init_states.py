@@ -135,14 +135,17 @@ def drop_and_settle(
 ) -> np.ndarray:
     """Settled states (size, K, 7) of the scene's objects: position (m, world) and quaternion
     (w, x, y, z) of every slot."""
-    model = build_scene(cfg, scene, xmls, robot=False).compile()
+    model = build_scene(cfg, scene, xmls, robot=False, visual=False).compile()
     phases = [(model, 1.0)]
     in_bin = "bin" in scene.fixtures
     if in_bin:
         # Most of the settling inside the chute, the last third in the real bin.
         walls = max(CHUTE_HEIGHT, cfg.bin.wall_height)
         chute = dataclasses.replace(cfg, bin=dataclasses.replace(cfg.bin, wall_height=walls))
-        phases = [(build_scene(chute, scene, xmls, robot=False).compile(), 2 / 3), (model, 1 / 3)]
+        phases = [
+            (build_scene(chute, scene, xmls, robot=False, visual=False).compile(), 2 / 3),
+            (model, 1 / 3),
+        ]
     data = mujoco.MjData(model)
     address = slot_qpos_addresses(model, scene.num_slots)
     radii = slot_radii(model, scene.num_slots)

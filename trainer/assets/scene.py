@@ -149,17 +149,39 @@ def _add_bin(spec: mujoco.MjSpec, cfg: EnvConfig) -> None:
         geom.conaffinity = (C.BIT_OBJECT | C.BIT_ARM | C.BIT_HAND) if collides else 0
 
 
-def add_object(spec: mujoco.MjSpec, xml_path: Path, slot: int) -> str:
+def _strip_visuals(child: mujoco.MjSpec) -> None:
+    """Delete the geoms that only show (contype = conaffinity = 0) with their meshes, materials
+    and textures: a YCB object's texture and visual mesh are ~30 MB of every compiled model that
+    the physics never reads."""
+    meshes, materials = set(), set()
+    for geom in list(child.geoms):
+        if geom.contype == 0 and geom.conaffinity == 0:
+            meshes.add(geom.meshname)
+            materials.add(geom.material)
+            child.delete(geom)
+    for name in meshes - {""}:
+        child.delete(child.mesh(name))
+    for name in materials - {""}:
+        material = child.material(name)
+        textures = [t for t in material.textures if t]
+        child.delete(material)
+        for texture in textures:
+            child.delete(child.texture(texture))
+
+
+def add_object(spec: mujoco.MjSpec, xml_path: Path, slot: int, visual: bool = True) -> str:
     """Put geomprep's object model (a body with a free joint, named after the object) into
     slot ``slot`` at the world origin; return the body name (``slot{k}``). The hulls keep the
     contact parameters geomprep wrote (its ``[mjcf]`` config); only their collision groups are
-    the scene's."""
+    the scene's. ``visual=False`` leaves out what only renders (for the models that step)."""
     if not xml_path.is_file():
         raise TrainerError(
             f"object model {xml_path} not found: build it with `geomprep build-all --objects "
             f"{xml_path.stem}`"
         )
     child = mujoco.MjSpec.from_file(str(xml_path))
+    if not visual:
+        _strip_visuals(child)
     frame = spec.worldbody.add_frame()
     body = frame.attach_body(child.body(xml_path.stem), f"{slot_name(slot)}/", "")
     body.name = slot_name(slot)
@@ -216,11 +238,13 @@ def ur5e_home_joints(cfg: EnvConfig, iterations: int = 300) -> np.ndarray:
 
 
 def build_scene(
-    cfg: EnvConfig, scene: Scene, object_xmls: Sequence[Path], robot: bool = True
+    cfg: EnvConfig, scene: Scene, object_xmls: Sequence[Path], robot: bool = True,
+    visual: bool = True,
 ) -> mujoco.MjSpec:
     """The task scene with slot k holding ``object_xmls[k]`` (one per slot), as an ``MjSpec``
     (compile with ``.compile()``). ``robot=False``: fixtures and objects only (for settling
-    initial states).
+    initial states). ``visual=False``: without the objects' visual meshes and textures (the
+    models that only step; same bodies, joints, sites and collision geoms).
 
     Robot ``ur5e``: the arm with the hand on its flange, 6 arm position actuators first, then the
     5 hand actuators. Robot ``floating``: the hand on a free body ``hand_base`` (at the palm
@@ -237,7 +261,7 @@ def build_scene(
     if robot:
         _add_robot(spec, cfg)
     for k, xml in enumerate(object_xmls):
-        add_object(spec, Path(xml), k)
+        add_object(spec, Path(xml), k, visual)
     return spec
 
 

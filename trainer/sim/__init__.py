@@ -7,6 +7,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import torch
 
@@ -31,8 +32,15 @@ def make_backend(
     if cfg.backend == "cpu":
         from trainer.sim.cpu import MujocoCPUBackend
 
-        models = [build_scene(cfg, scene, xmls).compile() for xmls in layouts]
-        return MujocoCPUBackend(models, env_layout, cfg.physics.substeps, cfg.nthread, device)
+        # The stepping models leave out what only renders; videos get full models on demand.
+        models = [build_scene(cfg, scene, xmls, visual=False).compile() for xmls in layouts]
+
+        def render_model(layout: int) -> mujoco.MjModel:
+            return build_scene(cfg, scene, layouts[layout]).compile()
+
+        return MujocoCPUBackend(
+            models, env_layout, cfg.physics.substeps, cfg.nthread, device, render_model
+        )
     raise TrainerError(f"backend {cfg.backend!r} is not available: use backend = \"cpu\"")
 
 

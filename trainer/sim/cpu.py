@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import os
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 import mujoco
@@ -50,7 +50,8 @@ class MujocoCPUBackend(SimBackend):
 
     models: compiled models with identical nq, nv, nu, nmocap (the same robot, different
     objects); env_model: (E,) int, non-decreasing; substeps: physics steps per ``step``;
-    nthread: pool threads (0 = all cores).
+    nthread: pool threads (0 = all cores); render_model: builds the full (rendering) model of
+    a layout for ``model_for_env`` (default: the stepping model itself).
     """
 
     def __init__(
@@ -60,8 +61,11 @@ class MujocoCPUBackend(SimBackend):
         substeps: int,
         nthread: int = 0,
         device: str | torch.device = "cpu",
+        render_model: Callable[[int], mujoco.MjModel] | None = None,
     ) -> None:
         env_model = np.asarray(env_model, dtype=np.int64)
+        self._render_model = render_model
+        self._render_models: dict[int, mujoco.MjModel] = {}
         if np.any(np.diff(env_model) < 0):
             raise ValueError("env_model must be sorted so that each model's envs are contiguous")
         first = models[0]
@@ -212,7 +216,12 @@ class MujocoCPUBackend(SimBackend):
         return self.models[0]
 
     def model_for_env(self, env_id: int) -> mujoco.MjModel:
-        return self.models[int(self.env_model[env_id])]
+        layout = int(self.env_model[env_id])
+        if self._render_model is None:
+            return self.models[layout]
+        if layout not in self._render_models:
+            self._render_models[layout] = self._render_model(layout)
+        return self._render_models[layout]
 
     def step_held(self) -> None:
         list(self._pool.map(self._run, self._chunks))
