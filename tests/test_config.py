@@ -218,3 +218,19 @@ def test_generic_loader_literal_optional_and_nested_sections() -> None:
     # The caller's error type is raised.
     with pytest.raises(TrainerError):
         build_dataclass(TrainConfig, {"run": {"seed": "x"}}, "c.json", TrainerError)
+
+
+def test_presets_load_and_hold_the_paper_schedule() -> None:
+    """configs/*.toml are the named starting points README documents; paper.toml is the
+    paper's schedule: 16,384 envs x 32 steps, minibatches of 32,768, 500 iterations."""
+    from trainer.ppo import iteration_frames, minibatch_size
+
+    root = Path(__file__).resolve().parents[1] / "configs"
+    presets = {p.stem: load_train_config(p) for p in sorted(root.glob("*.toml"))}
+    assert {"paper", "cpu"} <= set(presets)
+    paper = presets["paper"]
+    assert paper.env.num_envs == 16384 and paper.ppo.frames_per_env == 32
+    assert paper.ppo.epochs == 5 and minibatch_size(paper) == 32768
+    assert paper.run.total_steps // iteration_frames(paper) == 500
+    assert paper.env.reward.h_bar_start == paper.env.reward.h_bar  # no curriculum
+    assert presets["cpu"].env.reward.h_bar_start < presets["cpu"].env.reward.h_bar
