@@ -129,7 +129,8 @@ def _add_bin(spec: mujoco.MjSpec, cfg: EnvConfig) -> None:
     hx, hy = b.inner_half_size
     t, h = b.wall_thickness, b.wall_height
     boxes = {
-        "bin_floor": ((0.0, 0.0, -0.5 * t), (hx + t, hy + t, 0.5 * t)),
+        # 1 mm above the table top: a coplanar face would flicker against the table's.
+        "bin_floor": ((0.0, 0.0, 0.001 - 0.5 * t), (hx + t, hy + t, 0.5 * t)),
         "bin_wall_x+": ((hx + 0.5 * t, 0.0, 0.5 * h), (0.5 * t, hy + t, 0.5 * h)),
         "bin_wall_x-": ((-hx - 0.5 * t, 0.0, 0.5 * h), (0.5 * t, hy + t, 0.5 * h)),
         "bin_wall_y+": ((0.0, hy + 0.5 * t, 0.5 * h), (hx, 0.5 * t, 0.5 * h)),
