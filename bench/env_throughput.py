@@ -31,8 +31,6 @@ import os
 import statistics
 import time
 
-import mujoco
-import numpy as np
 import torch
 
 from trainer.config import EnvConfig, load_env_config
@@ -153,29 +151,24 @@ def build_cost(args: argparse.Namespace) -> None:
     backend = make_backend(cfg, env.scene, xmls, env.env_layout.cpu().numpy(), "cpu")
     backend_s = time.perf_counter() - start
     backend.close()
-    firsts = [int(np.flatnonzero(env.env_layout.cpu().numpy() == k)[0]) for k in range(L)]
-    models = [env.backend.model_for_env(i) for i in firsts]
-    datas = [mujoco.MjData(m) for m in models]
-    model_bytes = sum(m.nbuffer for m in models)
-    data_bytes = sum(d.nbuffer for d in datas)
-    arena_bytes = sum(d.narena for d in datas)
-    state = _nbytes(env.backend.state_dict())
+    held = env.backend.memory()  # the stepping models: no visual meshes or textures
+    render = env.backend.model_for_env(0)  # what a video of env 0 loads on demand
     banks = _nbytes(env.banks)
-    m0 = models[0]
+    m0 = env.backend.model
     mib = 2.0**20
     print(f"  build the env: first {first:.1f} s (settles and caches missing initial states), "
           f"cached {again:.1f} s")
     print(f"  backend alone (compile {L} models, allocate): {backend_s:.2f} s")
-    print(f"  per model: nq {m0.nq}, nv {m0.nv}, ngeom {m0.ngeom}, "
-          f"nbuffer {m0.nbuffer / mib:.2f} MiB, MjData {mujoco.MjData(m0).nbuffer / mib:.2f} MiB")
-    print(f"  MjModel buffers, {L} layouts: {model_bytes / mib:.1f} MiB")
-    print(f"  MjData buffers, one per layout: {data_bytes / mib:.1f} MiB, plus arenas (contacts, "
-          f"constraints; reserved, resident only as used) {arena_bytes / mib:.0f} MiB; the CPU "
-          "backend keeps one MjData per layout in each pool thread that steps it")
-    print(f"  backend state (state_dict) for {n} envs: {state / mib:.2f} MiB")
+    print(f"  per stepping model: nq {m0.nq}, nv {m0.nv}, ngeom {m0.ngeom}, nbuffer "
+          f"{m0.nbuffer / mib:.2f} MiB (with visual meshes and textures, for videos only: "
+          f"{render.nbuffer / mib:.2f} MiB)")
+    print(f"  stepping models, {L} layouts: {held['models'] / mib:.1f} MiB")
+    print(f"  MjData, one per layout and pool thread at most: {held['data'] / mib:.1f} MiB")
+    print(f"  state, output and control arrays for {n} envs: {held['state'] / mib:.2f} MiB")
     print(f"  initial-state banks: {banks / mib:.3f} MiB")
-    print(f"  total of the above: {(model_bytes + data_bytes + state + banks) / mib:.1f} MiB; "
-          f"process RSS grew {grown / mib:.0f} MiB in the first build")
+    total = held["models"] + held["data"] + held["state"] + banks
+    print(f"  total of the above: {total / mib:.1f} MiB; process RSS grew {grown / mib:.0f} MiB "
+          "in the first build")
     env.close()
 
 

@@ -79,6 +79,11 @@ class SimBackend(ABC):
         """One control period with the controls already held and nothing else (no writes, no
         reads): the physics-only baseline of ``bench/env_throughput.py``."""
 
+    def memory(self) -> dict[str, int]:
+        """Bytes the backend holds, by kind (e.g. ``models``, ``data``, ``state``), for
+        benchmarks; empty if the backend does not say."""
+        return {}
+
     @abstractmethod
     def state_dict(self) -> dict:
         """Everything needed to continue the simulation exactly (for checkpoints)."""

@@ -223,6 +223,14 @@ class MujocoCPUBackend(SimBackend):
             self._render_models[layout] = self._render_model(layout)
         return self._render_models[layout]
 
+    def memory(self) -> dict[str, int]:
+        """``models``: the stepping models' buffers; ``data``: one MjData per model and pool
+        thread at most (their contact/constraint arenas are reserved address space, resident
+        only as used, and not counted); ``state``: the state, output and control arrays."""
+        data = sum(mujoco.MjData(m).nbuffer for m in self.models) * self.nthread
+        arrays = self._state.nbytes + self._out.nbytes + self._control.nbytes
+        return {"models": sum(m.nbuffer for m in self.models), "data": data, "state": arrays}
+
     def step_held(self) -> None:
         list(self._pool.map(self._run, self._chunks))
         self._state[:] = self._out[:, -1]
