@@ -148,6 +148,9 @@ def _start_parallel_build(cfg: Config, capture: bool) -> tuple[subprocess.Popen,
         stderr=subprocess.PIPE if capture else subprocess.DEVNULL,
         text=True,
         start_new_session=True,  # its own process group, as a shell job would have
+        # As from a terminal: a test run started in the background (`cmd &` in a script)
+        # inherits an ignored SIGINT, which would make the build ignore the Ctrl-C.
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     deadline = time.monotonic() + 120
     workers: list[int] = []
