@@ -77,22 +77,9 @@ class EvalResult:
 
 def force_targets(env: GraspTask, slots: torch.Tensor) -> TensorDictBase:
     """Right after a reset: make slot ``slots[i]`` the target of env i's episode (rows with
-    ``slots[i] < 0`` keep theirs); returns the reset observation of the new targets.
-
-    Uses only the env's public checkpoint hooks: the just-reset state is snapshotted, its
-    ``target_slot`` and ``start_height`` (the target's height at reset, what its lift is measured
-    from) rewritten, and restored by a second reset."""
-    snapshot = env.snapshot()
-    state = snapshot["state"]
-    slots = slots.to(state["target_slot"].device)
-    keep = slots < 0
-    target = torch.where(keep, state["target_slot"], slots)
-    heights = env.slot_poses(env.backend.qpos)[..., 2].to(state["start_height"])
-    start = heights.gather(1, target[:, None].to(heights.device))[:, 0]
-    state["target_slot"] = target
-    state["start_height"] = torch.where(keep, state["start_height"], start)
-    env.restore_on_next_reset(snapshot)
-    return env.reset()
+    ``slots[i] < 0`` keep theirs); returns the reset observation of the new targets
+    (``GraspTask.set_targets``)."""
+    return env.set_targets(slots)
 
 
 def run_episodes(

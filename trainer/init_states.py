@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from mujoco import rollout
 
-from geomprep.rotations import random_quats
+from geomprep.rotations import quat_to_matrix, random_quats
 from geomprep.store import atomic_path
 from trainer.assets.scene import Scene, build_scene, slot_name, slot_qpos_addresses
 from trainer.config import EnvConfig, config_dict
@@ -62,9 +62,8 @@ def slot_radii(model: mujoco.MjModel, num_slots: int) -> np.ndarray:
                 reach.append(np.linalg.norm(model.geom_pos[g]) + model.geom_rbound[g])
                 continue
             start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
-            rot = np.empty(9)
-            mujoco.mju_quat2Mat(rot, model.geom_quat[g])
-            verts = model.mesh_vert[start : start + count] @ rot.reshape(3, 3).T + model.geom_pos[g]
+            rot = quat_to_matrix(torch.as_tensor(model.geom_quat[g], dtype=torch.float64)).numpy()
+            verts = model.mesh_vert[start : start + count] @ rot.T + model.geom_pos[g]
             reach.append(float(np.linalg.norm(verts, axis=1).max()))
         radii[k] = max(reach)
     return radii

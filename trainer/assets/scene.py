@@ -20,7 +20,9 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+import torch
 
+from geomprep.rotations import matrix_to_quat, quat_to_matrix
 from trainer import constants as C
 from trainer.assets.arm import add_ur5e, dh_forward, flange_to_palm
 from trainer.assets.hand import add_sih_hand
@@ -65,15 +67,13 @@ def slot_qpos_addresses(model: mujoco.MjModel, num_slots: int) -> np.ndarray:
 
 
 def _matrix_to_quat(rot: np.ndarray) -> np.ndarray:
-    quat = np.empty(4)
-    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(rot, dtype=np.float64).ravel())
-    return quat
+    """(3, 3) -> (4,) (w, x, y, z), through the project's rotation module."""
+    return matrix_to_quat(torch.as_tensor(rot, dtype=torch.float64)).numpy()
 
 
 def _quat_to_matrix(quat: np.ndarray) -> np.ndarray:
-    rot = np.empty(9)
-    mujoco.mju_quat2Mat(rot, np.asarray(quat, dtype=np.float64))
-    return rot.reshape(3, 3)
+    """(4,) (w, x, y, z) -> (3, 3), through the project's rotation module."""
+    return quat_to_matrix(torch.as_tensor(quat, dtype=torch.float64)).numpy()
 
 
 def _options(spec: mujoco.MjSpec, cfg: EnvConfig) -> None:

@@ -233,6 +233,18 @@ class GraspTask(EnvBase):
         pose = poses.gather(1, index)[:, 0]
         return pose[:, :3], pose[:, 3:]
 
+    def set_targets(self, slots: torch.Tensor) -> TensorDictBase:
+        """Right after a reset: make slot ``slots[i]`` (E,) the target of env i's episode
+        (``slots[i] < 0`` keeps the drawn one); its lift is measured from its height now.
+        Returns the reset observation of the new targets (evaluation balances targets with it)."""
+        slots = slots.to(self.device)
+        keep = slots < 0
+        target = torch.where(keep, self.state["target_slot"], slots)
+        height = self.slot_poses(self.backend.qpos)[..., 2].gather(1, target[:, None])[:, 0]
+        self.state["start_height"] = torch.where(keep, self.state["start_height"], height)
+        self.state["target_slot"] = target
+        return self._observe(reset=True)
+
     # --- TorchRL interface -------------------------------------------------------------------
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:  # noqa: ANN003
         E = self.cfg.num_envs
@@ -448,12 +460,20 @@ class GraspTask(EnvBase):
         slots: torch.Tensor,
         target_slot: torch.Tensor,
     ) -> dict[str, torch.Tensor]:
-        """The robot's proprioception and the target's representation; tasks add to it."""
+        """The robot's proprioception and the target's representation, then what the task adds
+        (``_extra_obs``)."""
         proprio = torch.cat([palm_pos, rotation_6d(palm_rot), qpos[:, self.hand_qpos]], dim=-1)
         obj = object_representation(
             self.cfg.representation, self.objects, target_id, obj_pos, obj_quat, tips
         )
-        return {"proprio": proprio, "object": obj}
+        return {"proprio": proprio, "object": obj, **self._extra_obs(slots, target_slot)}
+
+    def _extra_obs(
+        self, slots: torch.Tensor, target_slot: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
+        """Task-specific observations from every slot's pose (E, K, 7) and the target slot
+        (E,): none here."""
+        return {}
 
     def _get_reward(
         self,

@@ -58,24 +58,13 @@ class BinTask(GraspTask):
         k = torch.randint(turns, (n,), generator=self._rng, device=self.device)
         return k.float() * (2 * torch.pi / turns)
 
-    def _get_obs(
-        self,
-        qpos: torch.Tensor,
-        palm_pos: torch.Tensor,
-        palm_rot: torch.Tensor,
-        target_id: torch.Tensor,
-        obj_pos: torch.Tensor,
-        obj_quat: torch.Tensor,
-        tips: torch.Tensor,
-        slots: torch.Tensor,
-        target_slot: torch.Tensor,
+    def _extra_obs(
+        self, slots: torch.Tensor, target_slot: torch.Tensor
     ) -> dict[str, torch.Tensor]:
-        obs = super()._get_obs(
-            qpos, palm_pos, palm_rot, target_id, obj_pos, obj_quat, tips, slots, target_slot
-        )
-        if self.cfg.context == "bbox":
-            obs["context"], obs["context_mask"] = self._context(slots, target_slot)
-        return obs
+        if self.cfg.context != "bbox":
+            return {}
+        context, mask = self._context(slots, target_slot)
+        return {"context": context, "context_mask": mask}
 
     def _context(
         self, slots: torch.Tensor, target_slot: torch.Tensor
