@@ -3,7 +3,8 @@
 # environment in .venv, the CPU build of torch, and the package itself.
 #
 #   scripts/setup.sh            # runtime only
-#   scripts/setup.sh dev,dvc    # with extras (the tests need dev; tests/test_dvc.py needs dvc)
+#   scripts/setup.sh dev,dvc,gpu  # with extras (the tests need dev; tests/test_dvc.py needs dvc;
+#                                 # tests/test_warp.py needs gpu: MuJoCo Warp, on its CPU device)
 #
 # Both README commands and .ci/run call this script, so CI takes the path a newcomer takes.
 # System packages are installed with apt-get when this runs as root or with password-less sudo;

@@ -24,6 +24,7 @@ from trainer.config import (  # noqa: E402
     REWARDS,
     ROBOTS,
     TASKS,
+    check_backend,
     check_device,
     load_env_config,
     load_train_config,
@@ -161,7 +162,8 @@ def demo(
 @click.option("--context", type=click.Choice(CONTEXTS), default=None,
               help="bbox: the bin task also sees the other objects' boxes [none].")
 @click.option("--backend", type=click.Choice(BACKENDS), default=None,
-              help="Physics backend [cpu].")
+              help="Physics backend [cpu]: cpu (MuJoCo C threads) or warp (MuJoCo Warp, "
+              "pip install -e '.[gpu]'; with --device cuda on a GPU).")
 @click.option("--repr", "representation", type=click.Choice(REPRESENTATIONS), default=None,
               help="Object representation the policy sees [the task's: sq for lift, bbox for "
               "bin].")
@@ -230,6 +232,7 @@ def run(
     cfg = load_train_config(config_path, env=env, run=run_over, names=RUN_OPTIONS)
     where = f"--device {device}" if device else f"device {cfg.env.device!r} in {config_path}"
     check_device(cfg.env.device, where, "use --device cpu")
+    check_backend(cfg.env.backend)
     if run_dir is None:
         e = cfg.env
         task = "" if e.task == "lift" else f"{e.task}{e.bin.num_objects}-"

@@ -34,8 +34,10 @@ TASKS = {"lift": "sq", "bin": "bbox"}
 """The tasks (``trainer/tasks/``) and the object representation each uses by default: the paper
 lifts single objects (its comparison of representations) and picks the target out of a bin seen
 through its bounding box."""
-BACKENDS = ("cpu",)
-"""Physics backends (``trainer/sim/``): ``cpu`` is MuJoCo's C ``rollout`` on a thread pool."""
+BACKENDS = ("cpu", "warp")
+"""Physics backends (``trainer/sim/``): ``cpu`` is MuJoCo's C ``rollout`` on a thread pool;
+``warp`` is MuJoCo Warp (every env a world of one batched model; on ``--device cuda`` a GPU,
+on ``cpu`` Warp's CPU device, slow but the same code), from ``pip install -e ".[gpu]"``."""
 CONTEXTS = ("none", "bbox")
 REWARDS = ("sdf", "com", "none")
 ROBOTS = ("ur5e", "floating")
@@ -176,6 +178,22 @@ class BinConfig(_Checked):
 
 
 @dataclass(frozen=True)
+class WarpConfig(_Checked):
+    """Buffer sizes of the MuJoCo Warp backend (``trainer/sim/warp.py``). A world whose
+    contacts or constraints do not fit is flagged unstable and reset (counted in
+    ``metrics.csv``), and the run warns naming the knob to raise."""
+
+    contacts_per_world: int = bounded(0, ge=0)
+    """Contacts per world (the pool is shared: one world may use more); 0: derived from the
+    scene (4 per colliding robot geom and 8 per object, times ``buffer_margin``)."""
+    constraints_per_world: int = bounded(0, ge=0)
+    """Constraint rows per world (a hard per-world limit); 0: ``condim`` per contact plus the
+    joint limits and equalities."""
+    buffer_margin: float = bounded(1.5, ge=1.0)
+    """Headroom of the derived contact count over its estimate."""
+
+
+@dataclass(frozen=True)
 class EnvConfig(_Checked):
     """A grasping task: the scene, the robot, the objects and how the policy sees them."""
 
@@ -213,6 +231,7 @@ class EnvConfig(_Checked):
     reward: RewardConfig = field(default_factory=RewardConfig)
     init: InitConfig = field(default_factory=InitConfig)
     bin: BinConfig = field(default_factory=BinConfig)
+    warp: WarpConfig = field(default_factory=WarpConfig)
 
     def __post_init__(self) -> None:
         if not self.representation and self.task in TASKS:
@@ -414,6 +433,18 @@ def check_device(device: str, where: str, fix: str) -> None:
             raise TrainerError(
                 f"{where}: there are only {torch.cuda.device_count()} CUDA device(s): {fix}"
             )
+
+
+def check_backend(backend: str) -> None:
+    """Refuse a backend whose packages are not installed, naming the install command (without
+    importing them: ``trainer --help`` and bad options stay fast)."""
+    from importlib.util import find_spec
+
+    if backend == "warp" and (find_spec("mujoco_warp") is None or find_spec("warp") is None):
+        raise TrainerError(
+            "backend warp needs MuJoCo Warp, which is not installed: pip install -e \".[gpu]\" "
+            "(or use --backend cpu)"
+        )
 
 
 def config_dict(cfg: Any) -> dict[str, Any]:

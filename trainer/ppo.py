@@ -288,6 +288,8 @@ def train(
             if row_h_bar != cfg.env.reward.h_bar:
                 postfix.update(h_bar=f"{row_h_bar:.2f}", at_h_bar=f"{target_rate:.2f}")
             bar.set_postfix(postfix)
+            for message in env.backend.drain_warnings():  # e.g. Warp buffers to enlarge
+                bar.write(f"warning: {message}")
             if iteration % cfg.run.checkpoint_every == 0 or iteration == total_iterations:
                 _save_checkpoint(
                     run, iteration, agent, optimizer, shuffle, outcomes, target_outcomes, h_bar,

@@ -150,7 +150,7 @@ def _add_bin(spec: mujoco.MjSpec, cfg: EnvConfig) -> None:
         geom.conaffinity = (C.BIT_OBJECT | C.BIT_ARM | C.BIT_HAND) if collides else 0
 
 
-def _strip_visuals(child: mujoco.MjSpec) -> None:
+def strip_visuals(child: mujoco.MjSpec) -> None:
     """Delete the geoms that only show (contype = conaffinity = 0) with their meshes, materials
     and textures: a YCB object's texture and visual mesh are ~30 MB of every compiled model that
     the physics never reads."""
@@ -182,7 +182,7 @@ def add_object(spec: mujoco.MjSpec, xml_path: Path, slot: int, visual: bool = Tr
         )
     child = mujoco.MjSpec.from_file(str(xml_path))
     if not visual:
-        _strip_visuals(child)
+        strip_visuals(child)
     frame = spec.worldbody.add_frame()
     body = frame.attach_body(child.body(xml_path.stem), f"{slot_name(slot)}/", "")
     body.name = slot_name(slot)

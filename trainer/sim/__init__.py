@@ -1,6 +1,7 @@
 """Physics backends: the ``SimBackend`` interface (``backend.py``), MuJoCo C on CPU threads
-(``cpu.py``), and ``make_backend``, the one place that turns a scene and the envs' object
-assignments into the backend ``EnvConfig.backend`` names."""
+(``cpu.py``), MuJoCo Warp (``warp.py``: one batched model for all envs, on a GPU or Warp's CPU),
+and ``make_backend``, the one place that turns a scene and the envs' object assignments into
+the backend ``EnvConfig.backend`` names."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import numpy as np
 import torch
 
 from trainer.assets.scene import Scene, build_scene
-from trainer.config import EnvConfig
+from trainer.config import EnvConfig, check_backend
 from trainer.errors import TrainerError
 from trainer.sim.backend import SimBackend
 
@@ -40,6 +41,21 @@ def make_backend(
 
         return MujocoCPUBackend(
             models, env_layout, cfg.physics.substeps, cfg.nthread, device, render_model
+        )
+    if cfg.backend == "warp":
+        check_backend("warp")
+        from trainer.sim.warp import MujocoWarpBackend, build_batched_model, derived_buffers
+
+        models = [build_scene(cfg, scene, xmls, visual=False).compile() for xmls in layouts]
+        merged, per_layout = build_batched_model(cfg, scene, layouts, models)
+        contacts, constraints = derived_buffers(cfg, merged, scene.num_slots)
+
+        def render_model(layout: int) -> mujoco.MjModel:
+            return build_scene(cfg, scene, layouts[layout]).compile()
+
+        return MujocoWarpBackend(
+            merged, per_layout, models, env_layout, cfg.physics.substeps, contacts, constraints,
+            device, render_model,
         )
     raise TrainerError(f"backend {cfg.backend!r} is not available: use backend = \"cpu\"")
 

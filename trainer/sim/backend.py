@@ -79,6 +79,11 @@ class SimBackend(ABC):
         """One control period with the controls already held and nothing else (no writes, no
         reads): the physics-only baseline of ``bench/env_throughput.py``."""
 
+    def drain_warnings(self) -> list[str]:
+        """Problems seen since the last call that the user can fix (e.g. buffers to enlarge),
+        one line each; the trainer prints them once per iteration. Empty by default."""
+        return []
+
     def memory(self) -> dict[str, int]:
         """Bytes the backend holds, by kind (e.g. ``models``, ``data``, ``state``), for
         benchmarks; empty if the backend does not say."""
