@@ -3,7 +3,10 @@
 **One model for every object.** All worlds step one ``mujoco_warp`` model with one launch per
 kernel, whatever objects they hold. The model is the scene with each slot body carrying ``H``
 mesh geoms, ``H`` the most convex hulls of any object in the set, and the hull meshes of every
-object in the set as assets. A world selects its own objects through MuJoCo Warp's *batched*
+object in the set, each used by a static *library geom* that collides with nothing and is absent
+from every world (only so that MuJoCo compiles the hull graph and polygons of every mesh, which
+MuJoCo Warp's multi-point convex contacts need: without them a knife resting on the table gets
+one contact point and tips 9 mm into it). A world selects its own objects through MuJoCo Warp's *batched*
 model fields (arrays with a leading world dimension, read as ``field[world % batch]``):
 
 * ``geom_dataid``: which mesh each slot geom is, ``-1`` for the slots an object with fewer hulls
@@ -20,7 +23,9 @@ per-world geometry that MuJoCo Warp added for heterogeneous worlds (batched ``ge
 as mjlab uses for per-environment object variants); the alternatives were one model per object
 (78 launches per kernel per step) or every hull of every object present in every world and
 parked away (78x the broad phase). The batch is one row per world (not one per distinct
-assignment read with ``world % L``), so the envs keep the task's order.
+assignment read with ``world % L``), so the envs keep the task's order; the price is memory:
+the per-world geom fields hold every geom of the model, library geoms included (78 YCB objects:
+~1,700 geoms, ~200 bytes each per world, ~3.5 GB at 16,384 worlds; unmeasured on a GPU).
 
 **Torch end to end.** ``qpos``, ``qvel``, ``ctrl``, mocap targets and the overflow flags are
 Warp arrays viewed as torch tensors (``wp.to_torch``: same memory, same device, no copies).
@@ -68,6 +73,9 @@ GEOM_FIELDS = (
     "geom_dataid", "geom_size", "geom_aabb", "geom_rbound", "geom_pos", "geom_quat",
     "geom_friction", "geom_solref", "geom_solimp", "geom_solmix", "geom_margin", "geom_gap",
 )
+LIBRARY_GEOM = "library_geom"
+LIBRARY_CONTYPE = 1 << 30
+"""The library geoms' collision bit: in no geom's conaffinity, so they collide with nothing."""
 PER_WORLD_FIELDS = BODY_FIELDS + DOF_FIELDS + GEOM_FIELDS
 """The model fields that differ between worlds (each gets a leading world dimension)."""
 
@@ -115,16 +123,26 @@ def build_batched_model(
     K = scene.num_slots
     hulls = max((len(_slot_geoms(m, k)) for m in models for k in range(K)), default=1)
     spec = build_scene(cfg, scene, layouts[0], visual=False)
-    # Every object's hull meshes, attached once as assets: the attached body is deleted again,
-    # so the merged model has the scene's bodies and joints, and the meshes compile exactly as
-    # in each layout's own model.
+    # Every object's hull meshes, attached once: the attached body is deleted again, so the
+    # merged model has the scene's bodies and joints, and the meshes compile exactly as in each
+    # layout's own model. MuJoCo computes a mesh's convex-hull graph and polygons (which MuJoCo
+    # Warp's multi-point convex collisions need) only for meshes that a colliding geom uses, so
+    # each library mesh gets a static *library geom* that collides with nothing (a contype bit
+    # no geom has in its conaffinity) and is absent from every world (dataid -1).
     library: dict[str, str] = {}
     for xml in dict.fromkeys(Path(x) for row in layouts for x in row):
         prefix = f"lib{len(library)}/"
         child = mujoco.MjSpec.from_file(str(xml))
         strip_visuals(child)
         body = spec.worldbody.add_frame().attach_body(child.body(xml.stem), prefix, "")
+        meshes = [geom.meshname for geom in body.geoms]
         spec.delete(body)
+        for i, mesh_name in enumerate(meshes):
+            geom = spec.worldbody.add_geom()
+            geom.name = f"{prefix}{LIBRARY_GEOM}{i}"
+            geom.type = mujoco.mjtGeom.mjGEOM_MESH
+            geom.meshname = mesh_name
+            geom.contype, geom.conaffinity, geom.group = LIBRARY_CONTYPE, 0, 5
         library[str(xml)] = prefix
     for k in range(K):
         body = spec.body(slot_name(k))
@@ -146,7 +164,8 @@ def build_batched_model(
     in_slot = np.zeros(merged.ngeom, dtype=bool)
     for r in slot_ranges:
         in_slot[list(r)] = True
-    fixed = np.flatnonzero(~in_slot)  # robot and fixtures: the same geoms in every layout
+    in_library = np.array([LIBRARY_GEOM in merged.geom(g).name for g in range(merged.ngeom)])
+    fixed = np.flatnonzero(~in_slot & ~in_library)  # robot, fixtures: in every layout, in order
     for m, row in zip(models, layouts, strict=True):
         for name in BODY_FIELDS + DOF_FIELDS:
             values[name].append(np.array(getattr(m, name)))
@@ -165,6 +184,7 @@ def build_batched_model(
             out = np.array(getattr(merged, name))  # the empty hull slots keep these values
             out[dst_of] = getattr(m, name)
             if name == "geom_dataid":
+                out[in_library] = -1
                 for k in range(K):
                     out[list(slot_ranges[k])] = -1  # empty slots: absent from this world
                     prefix = library[str(Path(row[k]))]
