@@ -21,6 +21,20 @@ hold in memory.
 
 ``--reprs default`` (the default) uses each task's own representation (``trainer.config.TASKS``:
 sq for lift, bbox for bin).
+
+3. The MuJoCo Warp backend (``--backend warp``; ``--num-envs`` is ``--envs``, ``--repr`` is
+   ``--reprs``): the lift task by default, at ``--num-envs`` (default 1024,4096,16384 with
+   ``--device cuda``, 8,32 on Warp's CPU device) for ``--repr com,sdf``, with the YCB objects
+   built in the data dir (all 78 when built; ``--objects auto``), else the built-in set. For each:
+   the env's build time, its first physics period (Warp compiles its kernels or loads them from
+   ``~/.cache/warp``), its first env step (torch.compile; on CUDA the next control period is
+   captured as a graph) and, after warm-up, the same alternating env /
+   ``step_held`` blocks as above (the device synchronized around each), their ratio, and the env
+   steps/s as a fraction of the paper's 53,000 (COM with PPO, RTX A6000, Isaac Gym). No memory
+   section (it measures the CPU backend's models).
+
+    python bench/env_throughput.py --backend warp --device cuda [--num-envs 1024,4096,16384]
+                                   [--repr com,sdf] [--tasks lift] [--objects auto]
 """
 
 from __future__ import annotations
@@ -30,12 +44,42 @@ import dataclasses
 import os
 import statistics
 import time
+from pathlib import Path
 
 import torch
 
-from trainer.config import EnvConfig, load_env_config
+from trainer.config import EnvConfig, check_backend, check_device, load_env_config
+from trainer.errors import TrainerError
+from trainer.objects import resolve_names
 from trainer.sim import make_backend
 from trainer.tasks import GraspTask, make_env
+
+PAPER_STEPS_PER_S = 53_000
+"""The paper's throughput: COM representation, training with PPO, one RTX A6000 (Isaac Gym)."""
+WARP_ENVS = {"cuda": "1024,4096,16384", "cpu": "8,32"}
+"""Default ``--num-envs`` of the warp backend by device type (Warp's CPU device: ~10 ms per
+physics step for up to ~30 worlds, so only a few worlds)."""
+
+
+def sync(device: str | torch.device) -> None:
+    """Wait for the device's queued work (CUDA runs asynchronously), so a timing covers it."""
+    device = torch.device(device)
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def pick_objects(spec: str, data_dir: str | Path | None) -> str:
+    """``auto``: ``ycb`` when YCB objects are imported and built in the data dir (the paper's 78
+    when all are), else ``builtin``; any other set or list as given."""
+    if spec != "auto":
+        return spec
+    data = Path(data_dir) if data_dir else load_env_config().data_dir
+    try:
+        names = resolve_names("ycb", data)
+    except TrainerError:
+        return "builtin"
+    built = all((data / "processed" / f"{name}.h5").is_file() for name in names)
+    return "ycb" if names and built else "builtin"
 
 
 class Stepper:
@@ -50,22 +94,33 @@ class Stepper:
             for _ in range(steps)
         ]
         self.td = env.reset()
-        for action in self.actions[:3]:  # warm-up (and compilation, with --compile)
+        sync(env.device)
+        # Warm-up (and compilation, with --compile; Warp's kernels in the first step, its CUDA
+        # graph in the second): the first step is timed on its own.
+        for i, action in enumerate(self.actions[:3]):
+            start = time.perf_counter()
             self.td["action"] = action
             _, self.td = env.step_and_maybe_reset(self.td)
+            if i == 0:
+                sync(env.device)
+                self.first_step_s = time.perf_counter() - start
+        sync(env.device)
         self.env_rates: list[float] = []
         self.raw_rates: list[float] = []
 
     def block(self) -> None:
         env, steps = self.env, len(self.actions)
+        sync(env.device)
         start = time.perf_counter()
         for action in self.actions:
             self.td["action"] = action
             _, self.td = env.step_and_maybe_reset(self.td)
+        sync(env.device)
         self.env_rates.append(env.num_envs * steps / (time.perf_counter() - start))
         start = time.perf_counter()
         for _ in range(steps):
             env.backend.step_held()
+        sync(env.device)
         self.raw_rates.append(env.num_envs * steps / (time.perf_counter() - start))
 
 
@@ -79,6 +134,7 @@ def task_config(args: argparse.Namespace, task: str, envs: int, rep: str, object
         overrides["bin"] = {"num_objects": bin_objects}
     if args.data_dir:
         overrides["data_dir"] = args.data_dir
+    overrides.update(backend=args.backend, device=args.device)  # defaults: cpu, cpu
     return load_env_config(**overrides)
 
 
@@ -114,6 +170,52 @@ def throughput(args: argparse.Namespace) -> None:
                 print(f"bin ({args.bin_objects} objects) / lift env steps/s, {n} envs, repr "
                       f"{rep}: {rates['bin'] / rates['lift']:.2f} (per-round median "
                       f"{paired:.2f}; target >= 0.50)")
+
+
+def warp_throughput(args: argparse.Namespace) -> None:
+    """``throughput`` for the warp backend: one env at a time (they share the device), with its
+    build and first-step seconds, its memory on the device and the ratio to the paper."""
+    objects = pick_objects(args.objects, args.data_dir)
+    names = resolve_names(objects, Path(args.data_dir) if args.data_dir else
+                          load_env_config().data_dir)
+    print(f"MuJoCo Warp on {args.device}, objects {objects} ({len(names)}), "
+          f"{args.rounds} rounds of {args.steps} env steps after 3 warm-up steps")
+    print(f"{'task':>5} {'envs':>6} {'repr':>5} {'build s':>8} {'1st phys s':>10} "
+          f"{'1st step s':>10} "
+          f"{'env steps/s':>12} {'phys steps/s':>13} {'ratio':>6} {'/ paper':>8} {'MiB':>7}")
+    for n in (int(v) for v in args.envs.split(",")):
+        for rep in args.reprs.split(","):
+            for task in args.tasks.split(","):
+                cfg = task_config(args, task, n, rep, objects, args.bin_objects)
+                sync(args.device)
+                start = time.perf_counter()
+                env = make_env(cfg)
+                sync(args.device)
+                build_s = time.perf_counter() - start
+                start = time.perf_counter()
+                env.backend.step_held()  # Warp compiles its kernels (or loads them from cache)
+                sync(args.device)
+                kernels_s = time.perf_counter() - start
+                stepper = Stepper(env, args.steps)  # resets: the period above is forgotten
+                for _ in range(args.rounds):
+                    stepper.block()
+                env_rate = statistics.median(stepper.env_rates)
+                raw_rate = statistics.median(stepper.raw_rates)
+                mib = sum(env.backend.memory().values()) / 2.0**20
+                print(f"{task:>5} {n:>6} {env.cfg.representation:>5} {build_s:>8.1f} "
+                      f"{kernels_s:>10.2f} {stepper.first_step_s:>10.2f} {env_rate:>12.0f} "
+                      f"{raw_rate:>13.0f} {env_rate / raw_rate:>6.2f} "
+                      f"{env_rate / PAPER_STEPS_PER_S:>8.3f} {mib:>7.1f}")
+                for message in env.backend.drain_warnings():
+                    print(f"  warning: {message}")
+                env.close()
+                del env, stepper
+    print("build: make_env; 1st phys: the first step_held (Warp compiles its kernels, or loads "
+          "them from ~/.cache/warp); 1st step: the first env step (torch.compile with "
+          "--compile; on CUDA the graph capture); MiB: the backend's Warp model and data")
+    print(f"ratio: env steps/s over physics-only (step_held) steps/s, same run; / paper: env "
+          f"steps/s over the paper's {PAPER_STEPS_PER_S:,} (COM, with PPO, RTX A6000). Issue "
+          "target on one H100: env-only >= 300,000 env steps/s at 16,384 envs.")
 
 
 def rss_bytes() -> int:
@@ -174,11 +276,17 @@ def build_cost(args: argparse.Namespace) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--tasks", default="lift,bin")
-    parser.add_argument("--envs", default="256")
-    parser.add_argument("--reprs", default="default",
-                        help="comma list; 'default': each task's own representation")
-    parser.add_argument("--objects", default="builtin")
+    parser.add_argument("--backend", default="cpu", choices=("cpu", "warp"))
+    parser.add_argument("--device", default="cpu", help="torch device: cpu, or cuda for a GPU")
+    parser.add_argument("--tasks", default=None, help="default: lift,bin (cpu), lift (warp)")
+    parser.add_argument("--envs", "--num-envs", dest="envs", default=None,
+                        help="comma list; default: 256 (cpu), " + ", ".join(
+                            f"{v} (warp on {k})" for k, v in WARP_ENVS.items()))
+    parser.add_argument("--reprs", "--repr", dest="reprs", default=None,
+                        help="comma list; 'default': each task's own representation; default: "
+                        "default (cpu), com,sdf (warp)")
+    parser.add_argument("--objects", default=None,
+                        help="default: builtin (cpu), auto (warp: ycb if built, else builtin)")
     parser.add_argument("--bin-objects", type=int, default=5, help="objects per bin (throughput)")
     parser.add_argument("--robot", default="ur5e")
     parser.add_argument("--data-dir", default=None, help="default: the config's data_dir")
@@ -195,9 +303,25 @@ def main() -> None:
     parser.add_argument("--memory-bin-objects", type=int, default=10)
     args = parser.parse_args()
     torch.set_num_threads(1)
-    throughput(args)
-    if args.memory:
-        build_cost(args)
+    if args.backend == "cpu":
+        args.tasks = args.tasks or "lift,bin"
+        args.envs = args.envs or "256"
+        args.reprs = args.reprs or "default"
+        args.objects = args.objects or "builtin"
+        throughput(args)
+        if args.memory:
+            build_cost(args)
+        return
+    try:
+        check_device(args.device, f"--device {args.device}", "use --device cpu")
+        check_backend(args.backend)
+    except TrainerError as exc:
+        parser.error(str(exc))
+    args.tasks = args.tasks or "lift"
+    args.envs = args.envs or WARP_ENVS[torch.device(args.device).type]
+    args.reprs = args.reprs or "com,sdf"
+    args.objects = args.objects or "auto"
+    warp_throughput(args)
 
 
 if __name__ == "__main__":

@@ -8,6 +8,17 @@ logging). Prints both and the ratio (target >= 0.50: learning must not dominate 
                                    [--bin-objects 5] [--iterations 5] [--no-compile]
 
 ``--repr default`` uses the task's own representation (sq for lift, bbox for bin).
+
+With ``--backend warp`` (MuJoCo Warp; ``--device cuda`` for a GPU, else Warp's CPU device),
+``--num-envs`` (= ``--envs``) defaults to 1024,4096,16384 on CUDA and 8,32 on the CPU device,
+``--repr`` to com,sdf (a comma list) and ``--objects`` to auto (the YCB objects built in the
+data dir, all 78 when built, else the built-in set). Each row adds the env's build time, the
+first collected batch (Warp's kernels, torch.compile, the CUDA graph), the physics-only rate
+(``step_held``, same env, same run) and training frames/s over the paper's 53,000 env steps/s
+(COM, PPO, RTX A6000, Isaac Gym). The device is synchronized around every timing.
+
+    python bench/ppo_throughput.py --backend warp --device cuda [--num-envs 1024,4096,16384]
+                                   [--repr com,sdf] [--iterations 5]
 """
 
 from __future__ import annotations
@@ -19,37 +30,66 @@ import time
 from pathlib import Path
 
 import torch
+from env_throughput import PAPER_STEPS_PER_S, WARP_ENVS, pick_objects, sync
 from torchrl.collectors import Collector
 
-from trainer.config import load_train_config
+from trainer.config import check_backend, check_device, load_train_config
+from trainer.errors import TrainerError
 from trainer.models import Agent
 from trainer.ppo import iteration_frames, train
 from trainer.tasks import make_env
 
 
-def env_only_rate(cfg, iterations: int) -> float:  # noqa: ANN001
+def env_only(cfg, iterations: int, physics: bool) -> dict[str, float]:  # noqa: ANN001
+    """``rate``: frames/s of the collector over ``iterations`` batches after a warm-up batch;
+    ``build_s``: building the env; ``first_s``: the warm-up batch; with ``physics``, also
+    ``physics``: the backend's ``step_held`` steps/s over one batch's worth of control periods,
+    after the batches."""
+    device = cfg.env.device
+    sync(device)
+    start = time.perf_counter()
     env = make_env(cfg.env, seed=cfg.run.seed)
-    agent = Agent(env.observation_spec, cfg.ppo)
+    sync(device)
+    build_s = time.perf_counter() - start
+    agent = Agent(env.observation_spec, cfg.ppo).to(env.device)
     frames = iteration_frames(cfg)
     collector = Collector(env, agent.actor, frames_per_batch=frames, total_frames=-1,
                           auto_register_policy_transforms=False)
     batches = iter(collector)
+    start = time.perf_counter()
     next(batches)  # warm-up
+    sync(device)
+    first_s = time.perf_counter() - start
     start = time.perf_counter()
     for _ in range(iterations):
         next(batches)
-    rate = iterations * frames / (time.perf_counter() - start)
+    sync(device)
+    out = {"rate": iterations * frames / (time.perf_counter() - start), "build_s": build_s,
+           "first_s": first_s}
+    if physics:
+        start = time.perf_counter()
+        for _ in range(cfg.ppo.frames_per_env):
+            env.backend.step_held()
+        sync(device)
+        out["physics"] = frames / (time.perf_counter() - start)
     collector.shutdown()
     env.close()
-    return rate
+    return out
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--backend", default="cpu", choices=("cpu", "warp"))
+    parser.add_argument("--device", default="cpu", help="torch device: cpu, or cuda for a GPU")
     parser.add_argument("--task", default="lift", choices=("lift", "bin"))
-    parser.add_argument("--envs", default="64,256")
-    parser.add_argument("--repr", default="com", help="'default': the task's own")
-    parser.add_argument("--objects", default="builtin")
+    parser.add_argument("--envs", "--num-envs", dest="envs", default=None,
+                        help="comma list; default: 64,256 (cpu), " + ", ".join(
+                            f"{v} (warp on {k})" for k, v in WARP_ENVS.items()))
+    parser.add_argument("--repr", default=None,
+                        help="comma list; 'default': the task's own; default: com (cpu), "
+                        "com,sdf (warp)")
+    parser.add_argument("--objects", default=None,
+                        help="default: builtin (cpu), auto (warp: ycb if built, else builtin)")
     parser.add_argument("--bin-objects", type=int, default=5, help="objects per bin (bin task)")
     parser.add_argument("--iterations", type=int, default=5)
     parser.add_argument(
@@ -58,28 +98,61 @@ def main() -> None:
     )
     args = parser.parse_args()
     torch.set_num_threads(1)
-    print(f"{'task':>5} {'envs':>6} {'repr':>6} {'train frames/s':>15} "
-          f"{'env-only frames/s':>18} {'ratio':>6}")
+    warp = args.backend == "warp"
+    if warp:
+        try:
+            check_device(args.device, f"--device {args.device}", "use --device cpu")
+            check_backend(args.backend)
+        except TrainerError as exc:
+            parser.error(str(exc))
+        args.envs = args.envs or WARP_ENVS[torch.device(args.device).type]
+        args.repr = args.repr or "com,sdf"
+        args.objects = pick_objects(args.objects or "auto", None)
+        print(f"MuJoCo Warp on {args.device}, objects {args.objects}, {args.iterations} timed "
+              "iterations after one")
+        print(f"{'task':>5} {'envs':>6} {'repr':>5} {'build s':>8} {'1st batch s':>11} "
+              f"{'train frames/s':>15} {'env-only frames/s':>18} {'ratio':>6} "
+              f"{'phys steps/s':>13} {'train / paper':>14}")
+    else:
+        args.envs = args.envs or "64,256"
+        args.repr = args.repr or "com"
+        args.objects = args.objects or "builtin"
+        print(f"{'task':>5} {'envs':>6} {'repr':>6} {'train frames/s':>15} "
+              f"{'env-only frames/s':>18} {'ratio':>6}")
     for n in (int(v) for v in args.envs.split(",")):
-        env = {"task": args.task, "num_envs": n, "objects": args.objects, "compile": args.compile}
-        if args.repr != "default":
-            env["representation"] = args.repr
-        if args.task == "bin":
-            env["bin"] = {"num_objects": args.bin_objects}
-        frames = iteration_frames(load_train_config(env=env))
-        cfg = load_train_config(
-            env=env,
-            run={"total_steps": frames * (args.iterations + 1), "checkpoint_every": 10**9},
-        )
-        env_rate = env_only_rate(cfg, args.iterations)
-        with tempfile.TemporaryDirectory() as tmp:
-            run = train(cfg, Path(tmp) / "run", progress=False)
-            rows = list(csv.DictReader(run.metrics.read_text().splitlines()))
-        # Skip the first iteration (set-up, first collector reset), as for env-only.
-        seconds = float(rows[-1]["wall_time_s"]) - float(rows[0]["wall_time_s"])
-        train_rate = (len(rows) - 1) * iteration_frames(cfg) / seconds
-        print(f"{args.task:>5} {n:>6} {cfg.env.representation:>6} {train_rate:>15.0f} "
-              f"{env_rate:>18.0f} {train_rate / env_rate:>6.2f}")
+        for rep in args.repr.split(","):
+            env = {"task": args.task, "num_envs": n, "objects": args.objects,
+                   "compile": args.compile, "backend": args.backend, "device": args.device}
+            if rep != "default":
+                env["representation"] = rep
+            if args.task == "bin":
+                env["bin"] = {"num_objects": args.bin_objects}
+            frames = iteration_frames(load_train_config(env=env))
+            cfg = load_train_config(
+                env=env,
+                run={"total_steps": frames * (args.iterations + 1), "checkpoint_every": 10**9},
+            )
+            measured = env_only(cfg, args.iterations, physics=warp)
+            env_rate = measured["rate"]
+            with tempfile.TemporaryDirectory() as tmp:
+                run = train(cfg, Path(tmp) / "run", progress=False)
+                rows = list(csv.DictReader(run.metrics.read_text().splitlines()))
+            # Skip the first iteration (set-up, first collector reset), as for env-only.
+            seconds = float(rows[-1]["wall_time_s"]) - float(rows[0]["wall_time_s"])
+            train_rate = (len(rows) - 1) * iteration_frames(cfg) / seconds
+            if warp:
+                print(f"{args.task:>5} {n:>6} {cfg.env.representation:>5} "
+                      f"{measured['build_s']:>8.1f} {measured['first_s']:>11.1f} "
+                      f"{train_rate:>15.0f} {env_rate:>18.0f} {train_rate / env_rate:>6.2f} "
+                      f"{measured['physics']:>13.0f} {train_rate / PAPER_STEPS_PER_S:>14.3f}")
+            else:
+                print(f"{args.task:>5} {n:>6} {cfg.env.representation:>6} {train_rate:>15.0f} "
+                      f"{env_rate:>18.0f} {train_rate / env_rate:>6.2f}")
+    if warp:
+        print("ratio: train / env-only frames/s, same run (target >= 0.50); phys: step_held "
+              "alone, same env; build and 1st batch (Warp's kernels, torch.compile, the CUDA "
+              f"graph) are not in the rates; paper: {PAPER_STEPS_PER_S:,} env steps/s (COM, "
+              "PPO, RTX A6000). Issue target on one H100: >= 150,000 with PPO at 16,384 envs.")
 
 
 if __name__ == "__main__":
