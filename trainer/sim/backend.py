@@ -2,8 +2,9 @@
 
 The tasks (``trainer/tasks/``) only talk to a ``SimBackend``: they write controls and mocap
 targets, step, and read ``qpos``/``qvel`` as torch tensors; ``trainer.sim.make_backend`` builds
-the backend that ``EnvConfig.backend`` names from a scene and the envs' assignments. A GPU
-backend (MuJoCo Warp) plugs in by implementing the same few methods; no task changes.
+the backend that ``EnvConfig.backend`` names from a scene and the envs' assignments:
+``cpu.py`` (MuJoCo C) and ``warp.py`` (MuJoCo Warp, for a GPU) implement the same few methods,
+and no task knows which one it runs on.
 """
 
 from __future__ import annotations

@@ -6,8 +6,9 @@ mesh geoms, ``H`` the most convex hulls of any object in the set, and the hull m
 object in the set, each used by a static *library geom* that collides with nothing and is absent
 from every world (only so that MuJoCo compiles the hull graph and polygons of every mesh, which
 MuJoCo Warp's multi-point convex contacts need: without them a knife resting on the table gets
-one contact point and tips 9 mm into it). A world selects its own objects through MuJoCo Warp's *batched*
-model fields (arrays with a leading world dimension, read as ``field[world % batch]``):
+one contact point and tips 9 mm into it). A world selects its own objects through MuJoCo
+Warp's *batched* model fields (arrays with a leading world dimension, read as
+``field[world % batch]``):
 
 * ``geom_dataid``: which mesh each slot geom is, ``-1`` for the slots an object with fewer hulls
   leaves empty. MuJoCo Warp treats a mesh geom with ``dataid = -1`` as absent from that world
