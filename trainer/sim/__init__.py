@@ -29,30 +29,25 @@ def make_backend(
 
     layouts: L assignments, each the MJCF files filling the scene's K slots in order;
     env_layout: (E,) int in [0, L), non-decreasing: the layout env i simulates."""
+    check_backend(cfg.backend)  # before compiling anything: a missing extra is one line
     env_layout = np.asarray(env_layout, dtype=np.int64)
+    # The stepping models leave out what only renders; videos get full models on demand.
+    models = [build_scene(cfg, scene, xmls, visual=False).compile() for xmls in layouts]
+
+    def render_model(layout: int) -> mujoco.MjModel:
+        return build_scene(cfg, scene, layouts[layout]).compile()
+
     if cfg.backend == "cpu":
         from trainer.sim.cpu import MujocoCPUBackend
-
-        # The stepping models leave out what only renders; videos get full models on demand.
-        models = [build_scene(cfg, scene, xmls, visual=False).compile() for xmls in layouts]
-
-        def render_model(layout: int) -> mujoco.MjModel:
-            return build_scene(cfg, scene, layouts[layout]).compile()
 
         return MujocoCPUBackend(
             models, env_layout, cfg.physics.substeps, cfg.nthread, device, render_model
         )
     if cfg.backend == "warp":
-        check_backend("warp")
         from trainer.sim.warp import MujocoWarpBackend, build_batched_model, derived_buffers
 
-        models = [build_scene(cfg, scene, xmls, visual=False).compile() for xmls in layouts]
         merged, per_layout = build_batched_model(cfg, scene, layouts, models)
         contacts, constraints = derived_buffers(cfg, merged, scene.num_slots)
-
-        def render_model(layout: int) -> mujoco.MjModel:
-            return build_scene(cfg, scene, layouts[layout]).compile()
-
         return MujocoWarpBackend(
             merged, per_layout, models, env_layout, cfg.physics.substeps, contacts, constraints,
             device, render_model,

@@ -10,9 +10,14 @@ and no task knows which one it runs on.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
 
 import mujoco
+import numpy as np
 import torch
+
+MAX_SPEED = 1e3
+"""A joint speed above this (m/s or rad/s) means the simulation has blown up."""
 
 
 class SimBackend(ABC):
@@ -25,6 +30,10 @@ class SimBackend(ABC):
     nv: int
     nu: int
     nmocap: int
+    models: list[mujoco.MjModel]
+    """The layouts' compiled stepping models (``_set_models``)."""
+    env_layout: np.ndarray
+    """(E,) int: the layout (index into ``models``) env i simulates."""
 
     @abstractmethod
     def step(
@@ -64,16 +73,35 @@ class SimBackend(ABC):
         """(E,) bool: environments whose state is not finite or has blown up; the task resets
         them."""
 
+    def _set_models(
+        self,
+        models: Sequence[mujoco.MjModel],
+        env_layout: np.ndarray,
+        render_model: Callable[[int], mujoco.MjModel] | None,
+    ) -> None:
+        """Keep the layouts' compiled stepping ``models``, which layout each env simulates
+        (``env_layout`` (E,)) and how to build a layout's full (rendering) model (default: the
+        stepping model itself), for ``model`` and ``model_for_env``."""
+        self.models = list(models)
+        self.env_layout = np.asarray(env_layout, dtype=np.int64)
+        self._render_model = render_model
+        self._render_models: dict[int, mujoco.MjModel] = {}
+
     @property
-    @abstractmethod
     def model(self) -> mujoco.MjModel:
         """A compiled model of the scene (any assignment): the robot's and the slots' indices,
         names and kinematic tree are the same in every env's model."""
+        return self.models[0]
 
-    @abstractmethod
     def model_for_env(self, env_id: int) -> mujoco.MjModel:
         """The MuJoCo model env ``env_id`` simulates (its objects in their slots): for
-        rendering and inspection, not for stepping."""
+        rendering and inspection, not for stepping. Built once per layout, on first use."""
+        layout = int(self.env_layout[env_id])
+        if self._render_model is None:
+            return self.models[layout]
+        if layout not in self._render_models:
+            self._render_models[layout] = self._render_model(layout)
+        return self._render_models[layout]
 
     @abstractmethod
     def step_held(self) -> None:

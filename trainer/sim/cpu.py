@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from mujoco import rollout
 
-from trainer.sim.backend import SimBackend
+from trainer.sim.backend import MAX_SPEED, SimBackend
 
 FULL = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
 CONTROL = int(
@@ -30,8 +30,6 @@ CONTROL = int(
     | mujoco.mjtState.mjSTATE_MOCAP_QUAT
 )
 QPOS = int(mujoco.mjtState.mjSTATE_QPOS)
-MAX_SPEED = 1e3
-"""A joint speed above this (m/s or rad/s) means the simulation has blown up."""
 
 
 def state_offset(model: mujoco.MjModel, component: int) -> int:
@@ -64,15 +62,13 @@ class MujocoCPUBackend(SimBackend):
         render_model: Callable[[int], mujoco.MjModel] | None = None,
     ) -> None:
         env_model = np.asarray(env_model, dtype=np.int64)
-        self._render_model = render_model
-        self._render_models: dict[int, mujoco.MjModel] = {}
         if np.any(np.diff(env_model) < 0):
             raise ValueError("env_model must be sorted so that each model's envs are contiguous")
         first = models[0]
         for m in models[1:]:
             if (m.nq, m.nv, m.nu, m.nmocap, m.na) != (first.nq, first.nv, first.nu, first.nmocap, first.na):  # noqa: E501
                 raise ValueError("all models must have the same state and control sizes")
-        self.models = list(models)
+        self._set_models(models, env_model, render_model)
         self.num_envs = len(env_model)
         self.device = torch.device(device)
         self.nq, self.nv, self.nu, self.nmocap = first.nq, first.nv, first.nu, first.nmocap
@@ -83,7 +79,6 @@ class MujocoCPUBackend(SimBackend):
         qpos_start = state_offset(first, QPOS)
         self._qpos = slice(qpos_start, qpos_start + self.nq)
         self._qvel = slice(self._qpos.stop, self._qpos.stop + self.nv)
-        self.env_model = env_model
         self._state = np.zeros((self.num_envs, self.nstate))
         for k, m in enumerate(self.models):
             data = mujoco.MjData(m)
@@ -104,7 +99,7 @@ class MujocoCPUBackend(SimBackend):
         target = max(1, self.num_envs // (4 * self.nthread))
         chunks = []
         for k in range(len(self.models)):
-            ids = np.flatnonzero(self.env_model == k)
+            ids = np.flatnonzero(self.env_layout == k)
             if len(ids) == 0:
                 continue
             for start in range(ids[0], ids[-1] + 1, target):
@@ -210,18 +205,6 @@ class MujocoCPUBackend(SimBackend):
         self._state[:] = state["state"]
         self._stalled[:] = state["stalled"]
         self._cache.clear()
-
-    @property
-    def model(self) -> mujoco.MjModel:
-        return self.models[0]
-
-    def model_for_env(self, env_id: int) -> mujoco.MjModel:
-        layout = int(self.env_model[env_id])
-        if self._render_model is None:
-            return self.models[layout]
-        if layout not in self._render_models:
-            self._render_models[layout] = self._render_model(layout)
-        return self._render_models[layout]
 
     def memory(self) -> dict[str, int]:
         """``models``: the stepping models' buffers; ``data``: one MjData per model and pool

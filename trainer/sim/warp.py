@@ -59,8 +59,7 @@ import warp as wp
 
 from trainer.assets.scene import Scene, build_scene, slot_name, strip_visuals
 from trainer.config import EnvConfig
-from trainer.sim.backend import SimBackend
-from trainer.sim.cpu import MAX_SPEED
+from trainer.sim.backend import MAX_SPEED, SimBackend
 
 # Before MuJoCo Warp initialises Warp: no line per compiled or loaded kernel module.
 wp.config.log_level = wp.LOG_WARNING
@@ -249,15 +248,12 @@ class MujocoWarpBackend(SimBackend):
         render_model: Callable[[int], mujoco.MjModel] | None = None,
     ) -> None:
         self.device = torch.device(device)
-        self.models = list(models)
+        self._set_models(models, env_layout, render_model)
         self.merged = merged
-        self.env_layout = np.asarray(env_layout, dtype=np.int64)
         self.num_envs = E = len(self.env_layout)
         self.nq, self.nv, self.nu, self.nmocap = merged.nq, merged.nv, merged.nu, merged.nmocap
         self.substeps = substeps
         self.contacts, self.constraints = contacts, constraints
-        self._render_model = render_model
-        self._render_models: dict[int, mujoco.MjModel] = {}
         self._wp_device = wp.get_device(warp_device(self.device))
         self._stream = (
             wp.stream_from_torch(torch.cuda.current_stream(self.device))
@@ -394,18 +390,6 @@ class MujocoWarpBackend(SimBackend):
             view.copy_(torch.as_tensor(state[name]).to(view.device))
 
     # --- models ------------------------------------------------------------------------------
-    @property
-    def model(self) -> mujoco.MjModel:
-        return self.models[0]
-
-    def model_for_env(self, env_id: int) -> mujoco.MjModel:
-        layout = int(self.env_layout[env_id])
-        if self._render_model is None:
-            return self.models[layout]
-        if layout not in self._render_models:
-            self._render_models[layout] = self._render_model(layout)
-        return self._render_models[layout]
-
     def memory(self) -> dict[str, int]:
         """``model`` and ``data``: bytes of the Warp arrays on the device."""
         return {"model": _array_bytes(self.m), "data": _array_bytes(self.d)}
