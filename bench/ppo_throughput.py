@@ -91,6 +91,7 @@ def main() -> None:
     parser.add_argument("--objects", default=None,
                         help="default: builtin (cpu), auto (warp: ycb if built, else builtin)")
     parser.add_argument("--bin-objects", type=int, default=5, help="objects per bin (bin task)")
+    parser.add_argument("--data-dir", default=None, help="default: the config's data_dir")
     parser.add_argument("--iterations", type=int, default=5)
     parser.add_argument(
         "--compile", action=argparse.BooleanOptionalAction, default=True,
@@ -107,7 +108,7 @@ def main() -> None:
             parser.error(str(exc))
         args.envs = args.envs or WARP_ENVS[torch.device(args.device).type]
         args.repr = args.repr or "com,sdf"
-        args.objects = pick_objects(args.objects or "auto", None)
+        args.objects = pick_objects(args.objects or "auto", args.data_dir)
         print(f"MuJoCo Warp on {args.device}, objects {args.objects}, {args.iterations} timed "
               "iterations after one")
         print(f"{'task':>5} {'envs':>6} {'repr':>5} {'build s':>8} {'1st batch s':>11} "
@@ -123,6 +124,8 @@ def main() -> None:
         for rep in args.repr.split(","):
             env = {"task": args.task, "num_envs": n, "objects": args.objects,
                    "compile": args.compile, "backend": args.backend, "device": args.device}
+            if args.data_dir:
+                env["data_dir"] = Path(args.data_dir)
             if rep != "default":
                 env["representation"] = rep
             if args.task == "bin":

@@ -47,6 +47,7 @@ plate, fork, mug wall), so consumers can treat the zero level set there as under
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import trimesh
@@ -56,8 +57,11 @@ from geomprep import mesh as meshes
 from geomprep.errors import GeomprepError
 from geomprep.syslibs import import_open3d
 
-# open3d loads system libraries pip cannot install: a missing one is named in one line.
-o3d = import_open3d()
+if TYPE_CHECKING:
+    import open3d as o3d
+# open3d is imported where a grid is computed, not here: readers of built grids (the trainer,
+# a GPU machine without open3d) import this module too.  A missing system library is named in
+# one line by import_open3d.
 
 # Bump when the grid's values change, so cached assets are rebuilt.
 VERSION = 3
@@ -166,6 +170,7 @@ def _validate(
 
 def _make_scene(verts: np.ndarray, tris: np.ndarray) -> o3d.t.geometry.RaycastingScene:
     """An open3d (embree) scene holding the mesh, for closest-point and ray queries."""
+    o3d = import_open3d()
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(
         o3d.core.Tensor(verts.astype(np.float32)), o3d.core.Tensor(tris.astype(np.uint32))
@@ -197,6 +202,7 @@ def _unsigned_distance(
     rest = np.nonzero(todo)
     if rest[0].size:
         points = _points(centers, rest)
+        o3d = import_open3d()
         out[rest] = scene.compute_distance(o3d.core.Tensor(points)).numpy()
         n_queries += int(rest[0].size)
     return np.ascontiguousarray(out[:resolution, :resolution, :resolution]), n_queries
@@ -273,6 +279,7 @@ def _certify_with_nodes(
     ask = need & ~have
     ask_idx = np.nonzero(ask)
     node_pos = origin + np.stack(ask_idx, axis=1) * (s * voxel)
+    o3d = import_open3d()
     answer = scene.compute_closest_points(o3d.core.Tensor(node_pos.astype(np.float32)))
     node_rel[ask_idx] = node_pos - answer["points"].numpy()
     have |= ask
@@ -417,7 +424,7 @@ def _thickness(
     inward = -normal[pick] / np.maximum(area[pick], 1e-30)[:, None]
     # Start just inside so the ray does not hit its own triangle.
     rays = np.concatenate([origin + 1e-6 * inward, inward], axis=1).astype(np.float32)
-    hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+    hit = scene.cast_rays(import_open3d().core.Tensor(rays))["t_hit"].numpy()
     hit = hit[np.isfinite(hit)] + 1e-6
     if hit.size == 0:
         return 0.0, 0.0

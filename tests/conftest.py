@@ -52,6 +52,9 @@ def ycb_mesh(name: str) -> trimesh.Trimesh:
 # ---------------------------------------------------------------------------------------------
 # Built data directories, cached across test sessions by content
 
+PREBUILT_ENV = "GEOMGRASP_TEST_PREBUILT"
+"""A folder of fixture data built elsewhere, ``<label>/data`` each (e.g. copied to a GPU machine
+that lacks coacd and open3d): used as-is, without a content check, where present."""
 CACHE_ENV = "GEOMGRASP_TEST_CACHE"
 """Where built fixture data is kept between sessions (default ~/.cache/geomgrasp/test-data);
 ``0`` or ``off`` builds everything afresh in every session."""
@@ -109,6 +112,10 @@ def built_data(
     libraries and sources copies it instead of building (a build of the YCB test objects takes
     about a minute on 2 cores, a copy a second)."""
     dest = tmp_path_factory.mktemp(label) / "data"
+    prebuilt = Path(os.environ.get(PREBUILT_ENV, "/nonexistent")) / label / "data"
+    if prebuilt.is_dir():
+        shutil.copytree(prebuilt, dest)
+        return Config(data_dir=dest)
     root = _cache_root()
     if root is None:
         _build(dest, names, source_dir)
@@ -139,7 +146,9 @@ def build_ycb(
     tmp_path_factory: pytest.TempPathFactory, label: str, names: tuple[str, ...]
 ) -> Config:
     """A data directory with ``names`` imported from YCB_DIR and built (skips the test if the
-    YCB models are absent)."""
+    YCB models are absent and no prebuilt copy is given)."""
+    if (Path(os.environ.get(PREBUILT_ENV, "/nonexistent")) / label / "data").is_dir():
+        return built_data(tmp_path_factory, label, names)
     return built_data(tmp_path_factory, label, names, require_ycb())
 
 

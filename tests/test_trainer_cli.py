@@ -32,6 +32,24 @@ def test_importing_the_cli_does_not_import_torch() -> None:
     assert out.stdout.strip() == "[]"
 
 
+def test_training_does_not_need_the_mesh_libraries() -> None:
+    # The trainer only reads geomprep's artifacts: a machine without open3d and coacd (a GPU box
+    # given only the built data) must import everything a run uses.
+    code = (
+        "import sys\n"
+        "class Block:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name.split('.')[0] in ('open3d', 'coacd'):\n"
+        "            raise ImportError(f'blocked {name}')\n"
+        "sys.meta_path.insert(0, Block())\n"
+        "import trainer.objects, trainer.tasks, trainer.ppo, trainer.evaluation\n"
+        "print(sorted(m for m in ('open3d', 'coacd') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
+
+
 def invoke(argv: list[str], monkeypatch: pytest.MonkeyPatch, capsys) -> tuple[int, str]:  # noqa: ANN001
     """Run the real entry point (as the installed ``trainer`` script does): exit code, stderr."""
     code, _, err = invoke_all(argv, monkeypatch, capsys)

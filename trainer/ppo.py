@@ -226,7 +226,8 @@ def train(
             agent.value_norm.update(data["value_target"])
             data["value_target"] = agent.value_norm(data["value_target"])
             data["state_value"] = agent.value_norm(data["state_value"])
-            flat = data.reshape(-1)
+            # The collector's own bookkeeping (trajectory ids) stays on the CPU: not a loss input.
+            flat = data.exclude("collector").reshape(-1)
             # Loss statistics stay on the device (a float() per minibatch would wait for the
             # GPU every time); they are read once per epoch (the learning-rate schedule).
             losses: dict[str, list[torch.Tensor]] = {k: [] for k in LOSS_KEYS}

@@ -31,8 +31,10 @@ the per-world geom fields hold every geom of the model, library geoms included (
 **Torch end to end.** ``qpos``, ``qvel``, ``ctrl``, mocap targets and the overflow flags are
 Warp arrays viewed as torch tensors (``wp.to_torch``: same memory, same device, no copies).
 Controls are written into those views, resets write only the chosen worlds' rows, and nothing is
-read back to the host during a step; on CUDA, Warp runs on torch's current stream and the
-``substeps`` physics steps of one control period are one captured CUDA graph.
+read back to the host during a step; on CUDA, Warp runs on a stream of its own, ordered after
+and before torch's current stream by stream waits (a graph cannot be captured on the legacy
+default stream, which is torch's usual one), and the ``substeps`` physics steps of one control
+period are one captured CUDA graph (first run on an H100: results/gpu-h100-first/).
 
 **Buffers.** Contacts live in one pool for all worlds (``contacts_per_world`` x worlds) and
 constraints in per-world rows (``constraints_per_world``); both are derived from the scene
@@ -255,9 +257,12 @@ class MujocoWarpBackend(SimBackend):
         self.substeps = substeps
         self.contacts, self.constraints = contacts, constraints
         self._wp_device = wp.get_device(warp_device(self.device))
+        # On CUDA the physics runs on a stream of its own (a CUDA graph cannot be captured on
+        # the default stream, torch's usual one), ordered after and before torch's current
+        # stream by stream waits: no host synchronization.
+        self._torch_stream = torch.cuda.Stream(self.device) if self.device.type == "cuda" else None
         self._stream = (
-            wp.stream_from_torch(torch.cuda.current_stream(self.device))
-            if self.device.type == "cuda" else None
+            wp.stream_from_torch(self._torch_stream) if self._torch_stream is not None else None
         )
         with wp.ScopedDevice(self._wp_device):
             self.m = mjw.put_model(merged, batch_sizes=dict.fromkeys(PER_WORLD_FIELDS, E))
@@ -280,6 +285,8 @@ class MujocoWarpBackend(SimBackend):
         self._seen = torch.zeros(16, dtype=self._overflow.dtype, device=self.device)
         self._graph = None
         self._stepped = False
+        if self._torch_stream is not None:  # the model and data were written on Warp's stream
+            wp.synchronize_device(self._wp_device)
 
     # --- stepping ----------------------------------------------------------------------------
     def _substeps(self) -> None:
@@ -288,6 +295,8 @@ class MujocoWarpBackend(SimBackend):
 
     def step_held(self) -> None:
         stream = wp.ScopedStream(self._stream) if self._stream is not None else nullcontext()
+        if self._torch_stream is not None:  # after torch's writes of ctrl, mocap, resets
+            self._torch_stream.wait_stream(torch.cuda.current_stream(self.device))
         with wp.ScopedDevice(self._wp_device), stream:
             if self._graph is not None:
                 wp.capture_launch(self._graph)
@@ -299,6 +308,8 @@ class MujocoWarpBackend(SimBackend):
                 wp.capture_launch(self._graph)
             else:
                 self._substeps()
+        if self._torch_stream is not None:  # torch's reads of the new state wait for it
+            torch.cuda.current_stream(self.device).wait_stream(self._torch_stream)
         self._stepped = True
         self._seen |= ((self._overflow[:, None] >> self._bits) & 1).amax(0)
 
