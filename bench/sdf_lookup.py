@@ -171,6 +171,10 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=50)
     parser.add_argument("--data-dir", type=Path, default=None, help="use data/processed/*.h5")
     parser.add_argument(
+        "--devices", default="all",
+        help="comma list of cpu, cuda; 'all': the CPU and, where present, the GPU",
+    )
+    parser.add_argument(
         "--compile",
         action=argparse.BooleanOptionalAction,
         default=True,
@@ -221,6 +225,8 @@ def main() -> None:
     print(f"{args.envs} envs x {args.points} points, {n_obj} objects, spread {args.spread}")
 
     devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    if args.devices != "all":
+        devices = [d for d in args.devices.split(",") if d in devices]
     with torch.no_grad():
         for device in devices:
             sync = torch.cuda.synchronize if device == "cuda" else (lambda: None)
