@@ -24,14 +24,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from geomprep import builtin, importer, pipeline  # noqa: E402
+from geomprep import builtin  # noqa: E402
 from geomprep.config import Config, SDFParams  # noqa: E402
+from tests.conftest import GRASP_TEST_OBJECTS, YCB_TEST_OBJECTS, build_fixture  # noqa: E402
 
-FIXTURES = {
-    "builtin": tuple(builtin.NAMES),
-    "ycb": ("032_knife", "062_dice", "025_mug", "029_plate"),
-    "grasp": ("077_rubiks_cube", "013_apple", "005_tomato_soup_can"),
-}
+FIXTURES = {"builtin": tuple(builtin.NAMES), "ycb": YCB_TEST_OBJECTS, "grasp": GRASP_TEST_OBJECTS}
 
 
 def main() -> None:
@@ -47,15 +44,11 @@ def main() -> None:
         cfg = dataclasses.replace(
             Config(data_dir=data), sdf=SDFParams(resolution=args.sdf_resolution)
         )
-        if label != "builtin":
-            if not (args.ycb / names[0]).is_dir():
-                print(f"{label}: skipped, no YCB models in {args.ycb} (pass --ycb DIR)")
-                continue
-            importer.import_directory(args.ycb, cfg.raw_dir, list(names))
-        report = pipeline.build(cfg, pipeline.resolve_objects(cfg, list(names)), jobs=2,
-                                progress=False)
-        if report.failed:
-            sys.exit(f"{label}: building {', '.join(report.failed)} failed")
+        source = None if label == "builtin" else args.ycb
+        if source is not None and not (source / names[0]).is_dir():
+            print(f"{label}: skipped, no YCB models in {source} (pass --ycb DIR)")
+            continue
+        build_fixture(cfg, names, source)
         for stage_file in cfg.interim_dir.rglob("*.h5"):
             stage_file.unlink()
         size = sum(p.stat().st_size for p in data.rglob("*") if p.is_file())

@@ -33,6 +33,8 @@ def _find_ycb() -> Path:
 
 YCB_DIR = _find_ycb()
 YCB_TEST_OBJECTS = ("032_knife", "062_dice", "025_mug", "029_plate")
+GRASP_TEST_OBJECTS = ("077_rubiks_cube", "013_apple", "005_tomato_soup_can")
+"""The objects the scripted grasp is held to (>= 8 of 10 lifted each)."""
 
 
 def require_ycb() -> Path:
@@ -59,6 +61,12 @@ CACHE_ENV = "GEOMGRASP_TEST_CACHE"
 """Where built fixture data is kept between sessions (default ~/.cache/geomgrasp/test-data);
 ``0`` or ``off`` builds everything afresh in every session."""
 _KEY_PACKAGES = ("numpy", "scipy", "trimesh", "coacd", "open3d", "mujoco", "h5py", "manifold3d")
+
+
+def _prebuilt(label: str) -> Path | None:
+    """``$GEOMGRASP_TEST_PREBUILT/<label>/data`` where it exists."""
+    path = Path(os.environ.get(PREBUILT_ENV, "")) / label / "data"
+    return path if PREBUILT_ENV in os.environ and path.is_dir() else None
 
 
 def _cache_root() -> Path | None:
@@ -91,8 +99,9 @@ def _content_key(names: Sequence[str], source_dir: Path | None) -> str:
     return digest.hexdigest()[:20]
 
 
-def _build(data_dir: Path, names: Sequence[str], source_dir: Path | None) -> None:
-    cfg = Config(data_dir=data_dir)
+def build_fixture(cfg: Config, names: Sequence[str], source_dir: Path | None) -> None:
+    """Build ``names`` into ``cfg.data_dir``, imported from ``source_dir`` first unless they
+    are built-in (also scripts/prebuilt_fixtures.py, with a coarser SDF grid)."""
     if source_dir is not None:
         importer.import_directory(source_dir, cfg.raw_dir, list(names))
     resolved = pipeline.resolve_objects(cfg, list(names))
@@ -112,13 +121,13 @@ def built_data(
     libraries and sources copies it instead of building (a build of the YCB test objects takes
     about a minute on 2 cores, a copy a second)."""
     dest = tmp_path_factory.mktemp(label) / "data"
-    prebuilt = Path(os.environ.get(PREBUILT_ENV, "/nonexistent")) / label / "data"
-    if prebuilt.is_dir():
+    prebuilt = _prebuilt(label)
+    if prebuilt is not None:
         shutil.copytree(prebuilt, dest)
         return Config(data_dir=dest)
     root = _cache_root()
     if root is None:
-        _build(dest, names, source_dir)
+        build_fixture(Config(data_dir=dest), names, source_dir)
         return Config(data_dir=dest)
     root.mkdir(parents=True, exist_ok=True)
     entry = root / f"{label}-{_content_key(names, source_dir)}"
@@ -127,7 +136,7 @@ def built_data(
         if not (entry / "complete").is_file():
             staging = root / f".{entry.name}.tmp-{os.getpid()}"
             shutil.rmtree(staging, ignore_errors=True)
-            _build(staging / "data", names, source_dir)
+            build_fixture(Config(data_dir=staging / "data"), names, source_dir)
             (staging / "complete").write_text("built\n")
             for old in root.glob(f"{label}-*"):  # an older build of the same fixture
                 shutil.rmtree(old, ignore_errors=True)
@@ -147,7 +156,7 @@ def build_ycb(
 ) -> Config:
     """A data directory with ``names`` imported from YCB_DIR and built (skips the test if the
     YCB models are absent and no prebuilt copy is given)."""
-    if (Path(os.environ.get(PREBUILT_ENV, "/nonexistent")) / label / "data").is_dir():
+    if _prebuilt(label) is not None:
         return built_data(tmp_path_factory, label, names)
     return built_data(tmp_path_factory, label, names, require_ycb())
 

@@ -17,12 +17,12 @@ from click.testing import CliRunner
 from tensordict import TensorDict
 
 from geomprep.config import Config
+from tests.conftest import GRASP_TEST_OBJECTS as GRASP_OBJECTS
 from tests.conftest import build_ycb
 from trainer.config import load_env_config
 from trainer.scripted import ScriptedGrasp, run_scripted_grasp
 from trainer.tasks import make_env
 
-GRASP_OBJECTS = ("077_rubiks_cube", "013_apple", "005_tomato_soup_can")
 TRIALS = 10
 
 

@@ -29,7 +29,7 @@ import torch
 pytest.importorskip("mujoco_warp", reason="MuJoCo Warp not installed (pip install -e '.[gpu]')")
 
 from geomprep.config import Config  # noqa: E402
-from tests.conftest import build_ycb  # noqa: E402
+from tests.conftest import GRASP_TEST_OBJECTS, YCB_TEST_OBJECTS, build_ycb  # noqa: E402
 from tests.test_ppo import main, metrics_iterations  # noqa: E402
 from trainer.config import load_env_config, load_train_config  # noqa: E402
 from trainer.ppo import train  # noqa: E402
@@ -129,7 +129,7 @@ def test_each_world_simulates_its_own_object(
 ) -> None:
     """One batch holding the dice and the plate (YCB): each world has its own object's mass and
     hulls, and dropped from 5 cm each lands at its own height, the one MuJoCo C gives it."""
-    data = build_ycb(tmp_path_factory, "ycb", ("032_knife", "062_dice", "025_mug", "029_plate"))
+    data = build_ycb(tmp_path_factory, "ycb", YCB_TEST_OBJECTS)
     cpu, warp = env_pair(data.data_dir, "062_dice,029_plate", 4)
     backend = warp.backend
     masses = backend.m.body_mass.numpy()
@@ -213,7 +213,7 @@ def test_scripted_grasp_lifts_ycb_objects_on_warp(
 ) -> None:
     """The issue's bar on this backend: 077_rubiks_cube, 013_apple and 005_tomato_soup_can
     lifted by 0.2 m in >= 8 of 10 trials each (30 worlds in one batch, on Warp's CPU device)."""
-    names = ("077_rubiks_cube", "013_apple", "005_tomato_soup_can")
+    names = GRASP_TEST_OBJECTS
     data = build_ycb(tmp_path_factory, "grasp", names)
     cfg = load_env_config(
         num_envs=30, objects=",".join(names), data_dir=data.data_dir, backend="warp",

@@ -27,6 +27,7 @@ import argparse
 import csv
 import itertools
 import time
+import tomllib
 from dataclasses import replace
 from pathlib import Path
 
@@ -36,10 +37,9 @@ from trainer.config import load_env_config
 from trainer.scripted import ScriptedGrasp, run_scripted_grasp
 from trainer.tasks import make_env
 
-OBJECTS = (
-    "029_plate", "032_knife", "062_dice", "072-a_toy_airplane", "073-g_lego_duplo",
-    "007_tuna_fish_can", "013_apple", "053_mini_soccer_ball", "065-a_cups", "077_rubiks_cube",
-)
+# The paper's Table I objects, as the learning comparison names them.
+with open(Path(__file__).parents[1] / "cpu-table1" / "table1.toml", "rb") as _f:
+    OBJECTS = tuple(tomllib.load(_f)["objects"].split(","))
 BASE = ScriptedGrasp()
 # name -> (EnvConfig overrides, script); one change from the default each.
 VARIANTS: dict[str, tuple[dict, ScriptedGrasp]] = {
