@@ -227,7 +227,8 @@ def _stage_command(stage: str) -> click.Command:
             packed = pipeline.build(cfg, packable, stages=["pack"], jobs=1, progress=False)
             report.seconds.update(packed.seconds)
         for name in resolved:
-            click.echo(f"{name}: {pipeline.stage_path(cfg, name, stage)}")
+            if name not in report.failed:  # a failed object's error follows; it has no output
+                click.echo(f"{name}: {pipeline.stage_path(cfg, name, stage)}")
         _report(report, time.perf_counter() - start)
 
     return command

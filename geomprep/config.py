@@ -16,6 +16,7 @@ import dataclasses
 import difflib
 import functools
 import json
+import math
 import os
 import tomllib
 import types
@@ -113,12 +114,14 @@ def toml_value(value: Any) -> str:
 
 
 class _WrongType(Exception):
-    """A value that does not fit its annotation (the loader says where and what was expected)."""
+    """A value that does not fit its annotation (the loader says where and what was expected,
+    or the problem given as the exception's message)."""
 
 
 def _convert(value: Any, tp: Any) -> Any:
     """``value`` as annotation ``tp`` wants it (lists become tuples, strings paths, integers
-    floats), or ``_WrongType``. A bool is not an integer here, although Python says it is."""
+    floats), or ``_WrongType``. A bool is not an integer here, although Python says it is, and
+    a float is finite (TOML's inf and nan would pass every limit or silently poison a run)."""
     origin, args = get_origin(tp), get_args(tp)
     if tp is Any:
         return value
@@ -149,7 +152,13 @@ def _convert(value: Any, tp: Any) -> Any:
             return value
     elif tp is float:
         if isinstance(value, int | float) and not isinstance(value, bool):
-            return float(value)
+            try:
+                number = float(value)
+            except OverflowError:  # a TOML integer beyond any float
+                raise _WrongType("is too large for a number") from None
+            if not math.isfinite(number):
+                raise _WrongType("must be a finite number (not inf or nan)")
+            return number
     elif tp is str:
         if isinstance(value, str):
             return value
@@ -250,8 +259,9 @@ def build_dataclass(
             continue
         try:
             kwargs[key] = _convert(value, tp)
-        except _WrongType:
-            raise error(f"{label(key, value)}: expected {_describe(tp)}{example(key)}") from None
+        except _WrongType as exc:
+            problem = str(exc) or f"expected {_describe(tp)}"
+            raise error(f"{label(key, value)}: {problem}{example(key)}") from None
     try:
         return dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)
     except error as exc:
@@ -432,9 +442,16 @@ def read_toml(path: Path, error: type[Exception] = GeomprepError) -> dict[str, A
     """The TOML file at ``path`` as a dict; a missing or malformed file raises ``error`` with a
     one-line message (the trainer passes its own error type)."""
     try:
-        return tomllib.loads(Path(path).read_text())
+        return tomllib.loads(Path(path).read_text(encoding="utf-8"))  # TOML is UTF-8
     except FileNotFoundError:
         raise error(f"config file not found: {path}: check the --config path") from None
+    except UnicodeDecodeError as exc:
+        raise error(
+            f"config file {path} is not UTF-8 text (byte {exc.start} cannot be read): save it "
+            "as UTF-8"
+        ) from None
+    except OSError as exc:
+        raise error(f"cannot read config file {path}: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise error(f"config file {path} is not valid TOML: {exc}") from None
 

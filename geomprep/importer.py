@@ -149,11 +149,12 @@ def _check_source_dir(src: Path) -> None:
         )
 
 
-def _scan(src: Path) -> tuple[dict[str, Path], dict[str, str]]:
+def _scan(src: Path, builtin: bool = False) -> tuple[dict[str, Path], dict[str, str]]:
     """Objects in ``src``: ({name: YCB object dir or mesh file}, {name: problem with its fix}).
 
     Problems are entries a user meant as objects that cannot be imported (invalid or duplicate
-    names, empty meshes, unreadable formats, partial YCB folders); a name with one is not imported.
+    names, built-in objects' names unless ``builtin``, empty meshes, unreadable formats, partial
+    YCB folders); a name with one is not imported.
     """
     try:
         entries = sorted(entry for entry in src.iterdir() if not entry.name.startswith("."))
@@ -183,10 +184,15 @@ def _scan(src: Path) -> tuple[dict[str, Path], dict[str, str]]:
                 f"{path} is a {path.suffix} file, which import does not read: "
                 f"convert it to {', '.join(MESH_SUFFIXES)}"
             )
+    from geomprep.builtin import NAMES as BUILTIN_NAMES  # here: it imports trimesh
+
     found: dict[str, Path] = {}
     for name, group in candidates.items():
         entry, mesh_file = group[0]
         problem = name_problem(name)
+        if problem is None and name in BUILTIN_NAMES and not builtin:
+            # Imported, it would take the built-in object's place in every set and build.
+            problem = "is the name of a built-in object (geomprep writes it from code)"
         if problem is not None:
             kind = "folder" if entry.is_dir() else "file"
             problems[name] = f"cannot import {entry}: its object name {problem}: rename the {kind}"
@@ -235,6 +241,7 @@ def import_directory(
     density_kg_m3: float = 500.0,
     masses_csv: Path | None = None,
     force: bool = False,
+    builtin: bool = False,
 ) -> list[str]:
     """Import objects from a local directory into the raw store.
 
@@ -243,8 +250,10 @@ def import_directory(
     come along). Masses (kg) come from ``masses_csv``, else ``src/masses.csv`` if present;
     objects not listed there get ``density_kg_m3`` (kg/m^3) instead. Complete objects are kept
     unless ``force``. ``names`` selects objects (None or empty: all found, and then any entry
-    that looks like an object but cannot be imported is an error). Returns the sorted names
-    imported or already present.
+    that looks like an object but cannot be imported is an error). A built-in object's name
+    is refused (it would replace that object) unless ``builtin``: ``src`` is where
+    ``pipeline.ensure_builtin`` wrote the built-in objects. Returns the sorted names imported or
+    already present.
     """
     src = Path(src)
     raw_dir = Path(raw_dir)
@@ -252,7 +261,7 @@ def import_directory(
     _check_source_dir(src)
     if isinstance(names, str):
         names = [names]  # one name, not a sequence of characters
-    found, problems = _scan(src)
+    found, problems = _scan(src, builtin)
     selected = _select(src, found, problems, names)
     if masses_csv is not None:
         masses: dict[str, float] | None = read_masses(Path(masses_csv))

@@ -420,7 +420,8 @@ def resolve_objects(cfg: Config, spec: str | Sequence[str] | None) -> list[str]:
     """Object names from a comma list that may use the sets ``all``, ``builtin`` and ``ycb``.
 
     ``all`` (the default) is every imported object plus the built-in set. Built-in objects are
-    written into the raw store on first use. Unknown names raise GeomprepError.
+    written into the raw store on first use. Unknown names, and ``ycb`` with no YCB object
+    imported, raise GeomprepError.
     """
     if spec is None:
         spec = "all"
@@ -437,7 +438,14 @@ def resolve_objects(cfg: Config, spec: str | Sequence[str] | None) -> list[str]:
         elif item == "builtin":
             names += list(builtin.NAMES)
         elif item == "ycb":
-            names += [n for n in imported if n in ycb.OBJECTS]
+            ycb_names = [n for n in imported if n in ycb.OBJECTS]
+            if not ycb_names:  # not a silent 'nothing to do'
+                raise GeomprepError(
+                    f"the object set 'ycb' is empty: no YCB object is imported in {cfg.raw_dir}: "
+                    "download them with 'geomprep fetch' or import a copy with "
+                    "'geomprep fetch --from DIR'"
+                )
+            names += ycb_names
         elif item in builtin.NAMES or item in imported:
             names.append(item)
         else:
@@ -467,7 +475,7 @@ def ensure_builtin(cfg: Config, names: Sequence[str]) -> None:
             _, mass = builtin.write_source(name, staging)
             rows.append(f"{name},{mass}")
         (staging / "masses.csv").write_text("\n".join(rows) + "\n")
-        importer.import_directory(staging, cfg.raw_dir, missing)
+        importer.import_directory(staging, cfg.raw_dir, missing, builtin=True)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
 

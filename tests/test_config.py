@@ -58,7 +58,16 @@ def one_line(exc_info: pytest.ExceptionInfo) -> str:
         ("[run]\ntotal_steps = -5", "[run] total_steps = -5: must be >= 1"),
         ("num_envs = 0", "num_envs = 0: must be >= 1"),
         ("[ppo]\ngamma = 1.5", "[ppo] gamma = 1.5: must be >= 0 and <= 1"),
-        ("[ppo]\nlr = nan", "[ppo] lr = nan: must be > 0"),
+        ("[ppo]\nlr = nan", "[ppo] lr = nan: must be a finite number"),
+        # inf passes "> 0" (control_hz = inf used to end in a ZeroDivisionError traceback);
+        # nan in an unbounded field would train on NaN losses.
+        ("[physics]\ncontrol_hz = inf", "[physics] control_hz = inf: must be a finite number"),
+        ("[ppo]\nentropy_coef = nan", "[ppo] entropy_coef = nan: must be a finite number"),
+        (
+            "[physics]\ntable_size = [0.4, inf, 0.02]",
+            "[physics] table_size = [0.4, inf, 0.02]: must be a finite number",
+        ),
+        ("[ppo]\nlr = 1" + "0" * 400, "[ppo] lr = 1" + "0" * 400 + ": is too large for a number"),
         (
             "[physics]\ntable_size = [0.4, 0, 0.02]",
             "[physics] table_size = [0.4, 0, 0.02]: each element must be > 0",
@@ -168,6 +177,7 @@ def test_config_json_round_trip_and_bad_values(tmp_path: Path) -> None:
         ('[sdf]\ncompression = "zip"', '[sdf] compression = "zip": must be one of "gzip", "lzf"'),
         ("[pc]\nsizes = [16, 0]", "[pc] sizes = [16, 0]: each element must be >= 1"),
         ("[mesh]\ndensity_kg_m3 = -1.0", "[mesh] density_kg_m3 = -1.0: must be > 0"),
+        ("[sq]\nsurface_weight = inf", "[sq] surface_weight = inf: must be a finite number"),
         ("[decompose]\nmax_hulls = 0", "[decompose] max_hulls = 0: must be >= 1"),
         ("[sdf]\nresolutoin = 64", "[sdf]: unknown key 'resolutoin'"),
         ("[sfd]\nresolution = 64", "unknown section [sfd] (did you mean 'sdf'?)"),
@@ -179,6 +189,19 @@ def test_geomprep_config_errors(tmp_path: Path, toml: str, expected: str) -> Non
     with pytest.raises(GeomprepError) as exc:
         load_config(path)
     assert one_line(exc).startswith(str(path)) and expected in str(exc.value)
+
+
+def test_config_file_not_utf8_is_one_line(tmp_path: Path) -> None:
+    """A config saved as UTF-16 (as some editors do) used to end in a UnicodeDecodeError."""
+    path = tmp_path / "cfg.toml"
+    path.write_text("[ppo]\nlr = 0.001\n", encoding="utf-16")
+    with pytest.raises(GeomprepError) as exc:
+        load_config(path)
+    assert one_line(exc) == f"config file {path} is not UTF-8 text (byte 0 cannot be read): " \
+        "save it as UTF-8"
+    with pytest.raises(TrainerError, match="is not UTF-8 text") as exc:
+        load_train_config(path)
+    one_line(exc)
 
 
 def test_geomprep_config_converts(tmp_path: Path) -> None:

@@ -62,6 +62,17 @@ def test_failed_object_is_reported_once(tmp_path):
     )
     line = _assert_one_error_line(result, "flat", "metres")
     assert (result.stdout + result.stderr).count(line.removeprefix("error: flat: ")) == 1
+    # One stage of it: the error, and no output path named as if the stage had written it.
+    result = _geomprep("--data-dir", str(cfg.data_dir), "mesh", "flat")
+    _assert_one_error_line(result, "flat", "metres")
+    assert "mesh.h5" not in result.stdout and "1 objects failed" in result.stdout
+
+
+def test_empty_ycb_set_is_one_line(tmp_path):
+    """No YCB object imported: 'build-all --objects ycb' says so instead of building nothing
+    and exiting 0."""
+    result = _geomprep("--data-dir", str(tmp_path / "data"), "build-all", "--objects", "ycb")
+    _assert_one_error_line(result, "the object set 'ycb' is empty", "geomprep fetch")
 
 
 def test_file_system_errors_are_one_line(box_data, tmp_path):

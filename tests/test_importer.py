@@ -240,6 +240,20 @@ def test_import_refuses_reserved_names(tmp_path: Path, reserved: str) -> None:
     assert import_directory(src, raw, ["box"]) == ["box"]
 
 
+def test_import_refuses_built_in_object_names(tmp_path: Path) -> None:
+    """A file named builtin_box.stl would silently replace the built-in box in every build."""
+    src, raw = tmp_path / "src", tmp_path / "raw"
+    _write_plain_meshes(src)
+    trimesh.creation.box().export(src / "builtin_box.stl")
+
+    message = _import_error(src, raw)
+    assert f"{src / 'builtin_box'}.stl: its object name is the name of a built-in" in message
+    assert message.endswith("rename the file")
+    assert "builtin_box" in _import_error(src, raw, ["builtin_box"])
+    assert not (raw / "builtin_box").exists()
+    assert import_directory(src, raw, ["box"]) == ["box"]
+
+
 def test_import_refuses_reserved_folder_name(tmp_path: Path) -> None:
     src, raw = tmp_path / "src", tmp_path / "raw"
     _ycb_object(src, "ycb")

@@ -96,8 +96,12 @@ def test_reserved_names_are_the_pipeline_object_sets(
     be selected on its own."""
     monkeypatch.setattr(pipeline, "ensure_builtin", lambda cfg, names: None)
     cfg = Config(data_dir=tmp_path / "data")
-    for name in RESERVED_NAMES:
+    for name in RESERVED_NAMES - {"ycb"}:
         pipeline.resolve_objects(cfg, name)  # a set: no 'unknown object' error
+    # No YCB object imported: the set is empty, which is an error of its own (not a silent
+    # 'build-all --objects ycb' that builds nothing and exits 0).
+    with pytest.raises(GeomprepError, match="the object set 'ycb' is empty.*geomprep fetch"):
+        pipeline.resolve_objects(cfg, "ycb")
     with pytest.raises(GeomprepError, match="unknown object"):
         pipeline.resolve_objects(cfg, "not_a_set")
 

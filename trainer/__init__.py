@@ -1,7 +1,8 @@
 """trainer: PPO grasping policies on batched MuJoCo, consuming geomprep's processed assets.
 
-``config`` holds every knob as frozen dataclasses (loaded from TOML); ``env`` is the batched
-UR5e + Schunk SIH lifting task (the model from ``assets``, simulated by ``sim``, observed through
+``config`` holds every knob as frozen dataclasses (loaded from TOML); ``tasks`` are the batched
+UR5e + Schunk SIH grasping tasks (``lift``, ``bin``; ``tasks.make_env`` builds one) on scenes with
+object slots (the model from ``assets``, simulated by a ``sim`` backend, observed through
 ``kinematics``, ``objects`` and ``representations``, reset from ``init_states``); ``models`` and
 ``ppo`` are the policy and its training; ``evaluation``, ``video`` and ``report`` judge a trained
 run; ``scripted`` is a scripted grasp that shows the physics can grasp; ``cli`` is the
