@@ -23,7 +23,7 @@ from trainer.cli import main as trainer_main
 from trainer.config import load_train_config
 from trainer.evaluation import evaluate, run_episodes
 from trainer.models import Agent, RunningNorm
-from trainer.ppo import load_agent, minibatch_size, train
+from trainer.ppo import ObjectOutcomes, load_agent, minibatch_size, train
 from trainer.tasks import make_env
 
 OBJECTS = "builtin_cylinder,builtin_sphere"
@@ -140,6 +140,7 @@ def test_lift_curriculum_promotes_and_counts_task_success(
     assert [round(float(r["h_bar"]), 6) for r in rows[:3]] == [-1.0, -0.4, 0.2]
     assert float(rows[0]["target_success_rate"]) == 1.0
     assert all(float(r["success_rate"]) == 0.0 for r in rows)
+    assert all(float(r["object_success_rate"]) == 0.0 for r in rows)
     assert torch.load(run.last, weights_only=False)["h_bar"] == pytest.approx(0.2)
     # Evaluation uses the task's h_bar, not the curriculum's.
     _, agent = load_agent(run.path)
@@ -169,6 +170,24 @@ def test_resume_continues_bit_for_bit(builtin_data: Config, tmp_path: Path) -> N
     straight_rows = list(csv.DictReader(straight.metrics.read_text().splitlines()))
     assert [r["h_bar"] for r in rows] == [r["h_bar"] for r in straight_rows]
     assert float(rows[-1]["h_bar"]) > -1.0
+    assert a["object_outcomes"] == b["object_outcomes"] and a["object_outcomes"]
+    assert [r["object_success_rate"] for r in rows] == [
+        r["object_success_rate"] for r in straight_rows
+    ]
+
+
+def test_object_success_rate_weighs_objects_equally() -> None:
+    """A lifted object ends many short episodes, an object never lifted few long ones: over all
+    ended episodes the rate is 0.9, the paper's mean over objects is 0.5."""
+    outcomes = ObjectOutcomes(window=100)
+    outcomes.extend([0] * 90 + [1] * 10, [True] * 90 + [False] * 10)
+    assert outcomes.rate() == pytest.approx(0.5)
+    outcomes.extend([1] * 100, [True] * 100)  # object 1's window is its last 100 episodes
+    assert outcomes.rate() == pytest.approx(1.0)
+    restored = ObjectOutcomes(window=100)
+    restored.load(outcomes.state())
+    assert restored.state() == outcomes.state() and restored.rate() == outcomes.rate()
+    assert math.isnan(ObjectOutcomes(window=4).rate())
 
 
 def test_bin_run_with_context_resumes_bit_for_bit(builtin_data: Config, tmp_path: Path) -> None:

@@ -120,6 +120,18 @@ def test_load_run(runs: list[report.Run]) -> None:
     assert runs[4].per_object is None
 
 
+def test_load_run_prefers_the_mean_over_objects(tmp_path: Path) -> None:
+    """Where the trainer logged ``object_success_rate`` (the mean over objects) the report uses
+    it, not the rate over all ended episodes, which favours the objects that are lifted."""
+    path = _write_run(tmp_path, "com", 0, 10.0, [0.5, 0.9], None)
+    (path / "metrics.csv").write_text(
+        "iteration,env_steps,wall_time_s,success_rate,object_success_rate\n"
+        "1,100,10,0.5,0.25\n2,200,20,0.9,\n"
+    )
+    run = report.load_run(path)
+    assert run.success_rate[0] == 0.25 and np.isnan(run.success_rate[1])
+
+
 def test_steps_to_reach(runs: list[report.Run]) -> None:
     expected = {
         0.9: [(500_000, 150), (600_000, 204), (600_000, 216), (900_000, 270), None],

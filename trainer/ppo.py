@@ -40,7 +40,7 @@ from trainer.models import Agent
 from trainer.tasks import GraspTask, make_env, observation_spec
 
 METRICS = (
-    "iteration", "env_steps", "wall_time_s", "fps", "success_rate", "h_bar",
+    "iteration", "env_steps", "wall_time_s", "fps", "success_rate", "object_success_rate", "h_bar",
     "target_success_rate", "episodes", "episode_return", "episode_length", "unstable_resets",
     "loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx", "clip_fraction",
     "action_std", "lr",
@@ -51,6 +51,39 @@ CHECKPOINT_KEYS = (
     "episode_return", "episode_length", "env",
 )
 """Keys every checkpoint has (a file without them is not one; the curriculum's are optional)."""
+
+
+class ObjectOutcomes:
+    """Success at the task's lift height per target object: each object's last ``window``
+    episodes.
+
+    ``rate`` is the mean over the objects of their own success rates (the paper's "average
+    success rate across all objects"). The plain rate over the last ended episodes
+    (``success_rate``) over-counts the objects that are lifted: a lifted object's episode ends
+    early, so it ends more episodes per iteration than one that is not (in a run with 300-step
+    episodes, ~35 steps against 300)."""
+
+    def __init__(self, window: int) -> None:
+        self.window = window
+        self.by_object: dict[int, deque[bool]] = {}
+
+    def extend(self, object_ids: list[int], successes: list[bool]) -> None:
+        for object_id, success in zip(object_ids, successes, strict=True):
+            if object_id not in self.by_object:
+                self.by_object[object_id] = deque(maxlen=self.window)
+            self.by_object[object_id].append(success)
+
+    def rate(self) -> float:
+        """Mean over the objects with an ended episode of their success rates (NaN: none)."""
+        rates = [sum(d) / len(d) for d in self.by_object.values() if d]
+        return sum(rates) / len(rates) if rates else float("nan")
+
+    def state(self) -> dict[int, list[bool]]:
+        return {k: list(v) for k, v in self.by_object.items()}
+
+    def load(self, state: dict[int, list[bool]]) -> None:
+        for object_id, values in state.items():
+            self.by_object[int(object_id)] = deque(values, maxlen=self.window)
 
 
 @dataclass(frozen=True)
@@ -179,6 +212,7 @@ def train(
     # current training target.
     outcomes: deque[bool] = deque(maxlen=window)
     target_outcomes: deque[bool] = deque(maxlen=window)
+    object_outcomes = ObjectOutcomes(window)
     h_bar = cfg.env.reward.h_bar_start
     episode_return = torch.zeros(cfg.env.num_envs, device=device)
     episode_length = torch.zeros(cfg.env.num_envs, device=device)
@@ -190,6 +224,7 @@ def train(
         outcomes.extend(checkpoint["outcomes"])
         # (Checkpoints from before the curriculum existed lack both.)
         target_outcomes.extend(checkpoint.get("target_outcomes", []))
+        object_outcomes.load(checkpoint.get("object_outcomes", {}))  # (older checkpoints: none)
         h_bar = checkpoint.get("h_bar", cfg.env.reward.h_bar)
         episode_return = checkpoint["episode_return"].to(device)
         episode_length = checkpoint["episode_length"].to(device)
@@ -252,8 +287,8 @@ def train(
             agent.obs_norm.update(*(data[key] for key in agent.obs_keys))
 
             stats = _episode_stats(
-                data, cfg.env.reward.h_bar, outcomes, target_outcomes, episode_return,
-                episode_length,
+                data, cfg.env.reward.h_bar, outcomes, target_outcomes, object_outcomes,
+                episode_return, episode_length,
             )
             row_h_bar = h_bar
             target_rate = sum(target_outcomes) / len(target_outcomes) if target_outcomes else 0.0
@@ -269,6 +304,7 @@ def train(
                 "wall_time_s": now - start,
                 "fps": (steps - last_steps) / max(now - last_time, 1e-9),
                 "success_rate": sum(outcomes) / len(outcomes) if outcomes else float("nan"),
+                "object_success_rate": object_outcomes.rate(),
                 "h_bar": row_h_bar,
                 "target_success_rate": target_rate,
                 **stats,
@@ -284,7 +320,7 @@ def train(
                     writer.add_scalar(key, value, iteration)
             bar.update(frames)
             # No rate before the first episode ends: "nan" would read as a broken run.
-            success = f"{row['success_rate']:.2f}" if outcomes else "-"
+            success = f"{row['object_success_rate']:.2f}" if outcomes else "-"
             postfix = {"success": success, "it": iteration}
             if row_h_bar != cfg.env.reward.h_bar:
                 postfix.update(h_bar=f"{row_h_bar:.2f}", at_h_bar=f"{target_rate:.2f}")
@@ -293,8 +329,9 @@ def train(
                 bar.write(f"warning: {message}")
             if iteration % cfg.run.checkpoint_every == 0 or iteration == total_iterations:
                 _save_checkpoint(
-                    run, iteration, agent, optimizer, shuffle, outcomes, target_outcomes, h_bar,
-                    episode_return, episode_length, env, row["wall_time_s"],
+                    run, iteration, agent, optimizer, shuffle, outcomes, target_outcomes,
+                    object_outcomes, h_bar, episode_return, episode_length, env,
+                    row["wall_time_s"],
                 )
     finally:
         bar.close()
@@ -324,12 +361,12 @@ def _next_lift_target(h_bar: float, target_rate: float, window_full: bool, cfg: 
 
 def _episode_stats(
     data, task_h_bar: float, outcomes: deque, target_outcomes: deque,  # noqa: ANN001
-    episode_return: torch.Tensor, episode_length: torch.Tensor,
+    object_outcomes: ObjectOutcomes, episode_return: torch.Tensor, episode_length: torch.Tensor,
 ) -> dict[str, float]:
     """Walk the rollout in time (a loop over T steps, not over envs): accumulate returns, record
     the episodes that ended. Updates ``outcomes`` (lifted by the task's ``task_h_bar``),
-    ``target_outcomes`` (by the current training target) and the running return/length in
-    place."""
+    ``target_outcomes`` (by the current training target), ``object_outcomes`` (as
+    ``outcomes``, per target object) and the running return/length in place."""
     reward = data["next", "reward"][..., 0]
     done = data["next", "done"][..., 0]
     target_success = data["next", "success"][..., 0]
@@ -350,7 +387,10 @@ def _episode_stats(
     ended = done.T.cpu()
     ended_returns = return_at.T.cpu()[ended]
     ended_lengths = length_at.T.cpu()[ended]
-    outcomes.extend(success.T.cpu()[ended].tolist())
+    ended_success = success.T.cpu()[ended].tolist()
+    outcomes.extend(ended_success)
+    # The target of an ended episode is in its last step's "next" (the reset comes after).
+    object_outcomes.extend(data["next", "object_id"][..., 0].T.cpu()[ended].tolist(), ended_success)
     target_outcomes.extend(target_success.T.cpu()[ended].tolist())
     return {
         "episodes": int(ended.sum()),
@@ -383,9 +423,9 @@ def _truncate_metrics(path: Path, iteration: int) -> None:
 
 def _save_checkpoint(
     run: RunDir, iteration: int, agent: Agent, optimizer: torch.optim.Optimizer,
-    shuffle: torch.Generator, outcomes: deque, target_outcomes: deque, h_bar: float,
-    episode_return: torch.Tensor, episode_length: torch.Tensor, env: GraspTask,
-    wall_time_s: float,
+    shuffle: torch.Generator, outcomes: deque, target_outcomes: deque,
+    object_outcomes: ObjectOutcomes, h_bar: float, episode_return: torch.Tensor,
+    episode_length: torch.Tensor, env: GraspTask, wall_time_s: float,
 ) -> None:
     state = {
         "iteration": iteration,
@@ -397,6 +437,7 @@ def _save_checkpoint(
         **({"cuda_rng": torch.cuda.get_rng_state(env.device)} if env.device.type == "cuda" else {}),
         "outcomes": list(outcomes),
         "target_outcomes": list(target_outcomes),
+        "object_outcomes": object_outcomes.state(),
         "h_bar": h_bar,
         "episode_return": episode_return.clone(),
         "episode_length": episode_length.clone(),

@@ -4,7 +4,9 @@ A run directory is read as the trainer writes it::
 
     RUN_DIR/config.json            env.task, env.bin.num_objects, env.context,
                                    env.representation, env.reward.kind, env.robot.kind, run.seed
-    RUN_DIR/metrics.csv            one row per PPO iteration: env_steps, wall_time_s, success_rate
+    RUN_DIR/metrics.csv            one row per PPO iteration: env_steps, wall_time_s,
+                                   object_success_rate (the mean over objects; success_rate, over
+                                   all ended episodes, in runs logged before it existed)
     RUN_DIR/eval/per_object.csv    optional (``trainer eval``): object, episodes, successes
 
 Runs are grouped by (task, representation, reward kind, robot kind), where the task is ``lift`` or
@@ -203,18 +205,24 @@ def _read_config(path: Path) -> dict[str, Any]:
 
 
 def _read_metrics(path: Path) -> tuple[np.ndarray, ...]:
-    """env_steps, wall_time_s, success_rate, then h_bar and target_success_rate (None where the
-    file predates them)."""
+    """env_steps, wall_time_s, success rate, then h_bar and target_success_rate (None where the
+    file predates them).
+
+    The success rate is ``object_success_rate`` (the mean over the objects of their own rates,
+    the paper's measure) where the run logged it, else ``success_rate`` (over the last ended
+    episodes, which favours the objects that are lifted: their episodes end sooner)."""
     fix = "pass a run directory written by trainer run"
     if not path.is_file():
         raise TrainerError(f"{path}: missing; {fix}")
-    columns = ("env_steps", "wall_time_s", "success_rate")
+    columns: tuple[str, ...] = ("env_steps", "wall_time_s", "success_rate")
     optional = ("h_bar", "target_success_rate")
     rows: list[list[float]] = []
     try:
         with path.open(newline="") as f:
             reader = csv.DictReader(f)
             header = reader.fieldnames or ()
+            if "object_success_rate" in header:
+                columns = ("env_steps", "wall_time_s", "object_success_rate")
             missing = [c for c in columns if c not in header]
             if missing:
                 raise TrainerError(f"{path}: header lacks {', '.join(missing)}; {fix}")
