@@ -11,6 +11,10 @@ checks those). Physics, contacts and the Warp tests do not depend on the grid's 
 
     python scripts/prebuilt_fixtures.py OUT [--sdf-resolution 64] [--ycb DIR]
     tar cJf prebuilt.tar.xz -C OUT .
+
+``--objects NAMES --label LABEL`` builds one set of your own instead (e.g. the 10 objects of
+``results/cpu-table1/table1.toml`` for a training run on a GPU machine) into
+``OUT/LABEL/data``.
 """
 
 from __future__ import annotations
@@ -37,14 +41,19 @@ def main() -> None:
     parser.add_argument("--sdf-resolution", type=int, default=64)
     parser.add_argument("--ycb", type=Path, default=ROOT.parent / "shared" / "ycb",
                         help="the YCB folder (default: ../shared/ycb)")
+    parser.add_argument("--objects", help="comma-separated object names: build only this set")
+    parser.add_argument("--label", default="custom", help="folder name of the --objects set")
     args = parser.parse_args()
-    for label, names in FIXTURES.items():
+    fixtures = FIXTURES
+    if args.objects:
+        fixtures = {args.label: tuple(n.strip() for n in args.objects.split(",") if n.strip())}
+    for label, names in fixtures.items():
         data = args.out / label / "data"
         shutil.rmtree(data, ignore_errors=True)
         cfg = dataclasses.replace(
             Config(data_dir=data), sdf=SDFParams(resolution=args.sdf_resolution)
         )
-        source = None if label == "builtin" else args.ycb
+        source = None if all(n in builtin.NAMES for n in names) else args.ycb
         if source is not None and not (source / names[0]).is_dir():
             print(f"{label}: skipped, no YCB models in {source} (pass --ycb DIR)")
             continue

@@ -534,7 +534,7 @@ def plot_curves(
             grid / scale,
             mean,
             marker="o" if grid.size == 1 else None,
-            label=f"{labels[key]} ({len(members)} seeds)",
+            label=f"{labels[key]} ({len(members)} seed{'' if len(members) == 1 else 's'})",
         )[0]
         # A rate cannot leave [0, 1] even where mean ± std does.
         band = np.clip(mean - std, 0.0, 1.0), np.clip(mean + std, 0.0, 1.0)
