@@ -363,7 +363,7 @@ def test_resume_with_steps_extends_the_run(
     shutil.copytree(killed_run, run_dir)
     code, out, err = main(["run", "--resume", str(run_dir), "--steps", "160"], monkeypatch, capsys)
     assert code == 0, err
-    assert "extended from 128 to 160 steps" in out
+    assert "total steps 160, was 128" in out
     assert metrics_iterations(run_dir) == [1, 2, 3, 4, 5]
     assert json.loads((run_dir / "config.json").read_text())["run"]["total_steps"] == 160
     code, _, err = main(["run", "--resume", str(run_dir)], monkeypatch, capsys)

@@ -256,7 +256,8 @@ def _resume(run_dir: Path, steps: int | None) -> None:
         cfg = dataclasses.replace(
             cfg, run=override(cfg.run, {"total_steps": steps}, RUN_OPTIONS)
         )
-        click.echo(f"run: {run_dir} (resumed; extended from {before:,} to {steps:,} steps)")
+        # Neutral wording: a --steps below what the run has done is refused next, by train().
+        click.echo(f"run: {run_dir} (resumed; total steps {steps:,}, was {before:,})")
     else:
         click.echo(f"run: {run_dir} (resumed)")
     train(cfg, run_dir, resume=True)
