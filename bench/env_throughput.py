@@ -18,6 +18,10 @@ hold in memory.
     python bench/env_throughput.py [--tasks lift,bin] [--envs 256] [--reprs default|com,sdf,...]
                                    [--objects builtin] [--bin-objects 5] [--no-compile]
                                    [--memory-objects ycb] [--memory-bin-objects 10] [--no-memory]
+                                   [--sleep]
+
+``--sleep`` sets ``[physics] sleep`` (resting objects sleep; the CPU backend then steps through
+persistent ``mujoco.batch.Batch``es): compare a run with it to one without.
 
 ``--reprs default`` (the default) uses each task's own representation (``trainer.config.TASKS``:
 sq for lift, bbox for bin).
@@ -127,7 +131,8 @@ class Stepper:
 def task_config(args: argparse.Namespace, task: str, envs: int, rep: str, objects: str,
                 bin_objects: int) -> EnvConfig:
     overrides: dict = {"task": task, "num_envs": envs, "objects": objects,
-                       "compile": args.compile, "robot": {"kind": args.robot}}
+                       "compile": args.compile, "robot": {"kind": args.robot},
+                       "physics": {"sleep": args.sleep}}
     if rep != "default":
         overrides["representation"] = rep
     if task == "bin":
@@ -290,6 +295,8 @@ def main() -> None:
     parser.add_argument("--bin-objects", type=int, default=5, help="objects per bin (throughput)")
     parser.add_argument("--robot", default="ur5e")
     parser.add_argument("--data-dir", default=None, help="default: the config's data_dir")
+    parser.add_argument("--sleep", action=argparse.BooleanOptionalAction, default=False,
+                        help="[physics] sleep: resting objects sleep (cpu backend)")
     parser.add_argument("--steps", type=int, default=20, help="env steps per timed block")
     parser.add_argument("--rounds", type=int, default=5, help="alternating env/physics blocks")
     parser.add_argument(

@@ -30,6 +30,11 @@ def make_backend(
     layouts: L assignments, each the MJCF files filling the scene's K slots in order;
     env_layout: (E,) int in [0, L), non-decreasing: the layout env i simulates."""
     check_backend(cfg.backend)  # before compiling anything: a missing extra is one line
+    if cfg.physics.sleep and cfg.backend != "cpu":
+        raise TrainerError(
+            f"[physics] sleep = true is an option of the cpu backend, not of {cfg.backend!r}: "
+            "set sleep = false"
+        )
     env_layout = np.asarray(env_layout, dtype=np.int64)
     # The stepping models leave out what only renders; videos get full models on demand.
     models = [build_scene(cfg, scene, xmls, visual=False).compile() for xmls in layouts]
@@ -41,8 +46,10 @@ def make_backend(
         from trainer.sim.cpu import MujocoCPUBackend
 
         return MujocoCPUBackend(
-            models, env_layout, cfg.physics.substeps, cfg.nthread, device, render_model
+            models, env_layout, cfg.physics.substeps, cfg.nthread, device, render_model,
+            sleep=cfg.physics.sleep,
         )
+
     if cfg.backend == "warp":
         from trainer.sim.warp import MujocoWarpBackend, build_batched_model, derived_buffers
 

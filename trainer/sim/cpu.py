@@ -7,6 +7,12 @@ chunks; each pool thread runs
 ``mujoco.rollout.rollout`` on a chunk with its own ``MjData`` for that model. ``rollout`` releases
 the GIL, so the threads step in parallel, and no Python code runs per environment or per
 physics step.
+
+With ``sleep`` (``[physics] sleep``) the envs are stepped by MuJoCo's ``mujoco.batch.Batch``
+instead, one persistent batch per model (one MjData per env, which sleeping islands need:
+``rollout`` starts every control period from the saved state, which wakes every object). The
+state array stays the source of truth: each step copies it into the batches' rows and back. The
+copy is bitwise, so an island asleep stays asleep; a reset writes new values and wakes it.
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ import mujoco
 import numpy as np
 import torch
 from mujoco import rollout
+from mujoco.batch import Batch
 
 from trainer.sim.backend import MAX_SPEED, SimBackend
 
@@ -30,17 +37,31 @@ CONTROL = int(
     | mujoco.mjtState.mjSTATE_MOCAP_QUAT
 )
 QPOS = int(mujoco.mjtState.mjSTATE_QPOS)
+INTEGRATION = int(mujoco.mjtState.mjSTATE_INTEGRATION)
+SLEEP = int(mujoco.mjtEnableBit.mjENBL_SLEEP)
 
 
-def state_offset(model: mujoco.MjModel, component: int) -> int:
-    """Offset of ``component`` (an mjtState bit inside FULLPHYSICS) in a full physics state."""
+def state_offset(model: mujoco.MjModel, component: int, within: int = FULL) -> int:
+    """Offset of ``component`` (an mjtState bit inside ``within``) in a ``within`` state."""
     offset = 0
     bit = 1
     while bit < component:
-        if FULL & bit:
+        if within & bit:
             offset += mujoco.mj_stateSize(model, bit)
         bit <<= 1
     return offset
+
+
+def state_columns(model: mujoco.MjModel, components: int, within: int) -> np.ndarray:
+    """Columns of a ``within`` state (a superset of ``components``) that hold the
+    ``components`` state, in the order of a ``components`` state."""
+    columns = [
+        np.arange(start, start + mujoco.mj_stateSize(model, bit))
+        for bit in (1 << i for i in range(int(mujoco.mjtState.mjNSTATE)))
+        if components & bit
+        for start in (state_offset(model, bit, within),)
+    ]
+    return np.concatenate(columns)
 
 
 class MujocoCPUBackend(SimBackend):
@@ -49,7 +70,8 @@ class MujocoCPUBackend(SimBackend):
     models: compiled models with identical nq, nv, nu, nmocap (the same robot, different
     objects); env_model: (E,) int, non-decreasing; substeps: physics steps per ``step``;
     nthread: pool threads (0 = all cores); render_model: builds the full (rendering) model of
-    a layout for ``model_for_env`` (default: the stepping model itself).
+    a layout for ``model_for_env`` (default: the stepping model itself); sleep: let resting
+    objects sleep (one persistent ``Batch`` per model, see the module docstring).
     """
 
     def __init__(
@@ -60,6 +82,7 @@ class MujocoCPUBackend(SimBackend):
         nthread: int = 0,
         device: str | torch.device = "cpu",
         render_model: Callable[[int], mujoco.MjModel] | None = None,
+        sleep: bool = False,
     ) -> None:
         env_model = np.asarray(env_model, dtype=np.int64)
         if np.any(np.diff(env_model) < 0):
@@ -93,6 +116,20 @@ class MujocoCPUBackend(SimBackend):
         self._pool = ThreadPoolExecutor(self.nthread, thread_name_prefix="mujoco")
         self._cache: dict[str, torch.Tensor] = {}
         self._stalled = np.zeros(self.num_envs, dtype=bool)
+        self.sleep = sleep
+        self._batches: list[tuple[np.ndarray, Batch]] = []
+        if sleep:
+            self._full_columns = state_columns(first, FULL, INTEGRATION)
+            self._control_columns = state_columns(first, CONTROL, INTEGRATION)
+            for k, model in enumerate(self.models):
+                ids = np.flatnonzero(self.env_layout == k)
+                if len(ids) == 0:
+                    continue
+                model = model.__copy__()  # the sleeping copy; videos and memory use the originals
+                model.opt.enableflags |= SLEEP
+                # nthread=1: the batch runs on the pool thread that calls it (``_step_batch``).
+                batch = Batch(model, nsim=len(ids), nthread=1, persistent=True)
+                self._batches.append((ids, batch))
 
     def _make_chunks(self) -> list[tuple[int, int, int]]:
         """(model, start, stop) pieces: about 4 per thread so the threads finish together."""
@@ -129,6 +166,21 @@ class MujocoCPUBackend(SimBackend):
             skip_checks=True,
         )
 
+    def _step_batch(self, item: tuple[np.ndarray, Batch]) -> None:
+        ids, batch = item
+        batch.state[:, self._full_columns] = self._state[ids]
+        batch.state[:, self._control_columns] = self._control[ids, 0]
+        batch.step(nstep=self.substeps)
+        self._state[ids] = batch.state[:, self._full_columns]
+
+    def _advance(self) -> None:
+        """Every env by one control period, the controls held."""
+        if self.sleep:
+            list(self._pool.map(self._step_batch, self._batches))
+        else:
+            list(self._pool.map(self._run, self._chunks))
+            self._state[:] = self._out[:, -1]
+
     def step(
         self,
         ctrl: torch.Tensor,
@@ -136,9 +188,8 @@ class MujocoCPUBackend(SimBackend):
         mocap_quat: torch.Tensor | None = None,
     ) -> None:
         self._write_control(slice(None), ctrl, mocap_pos, mocap_quat)
-        list(self._pool.map(self._run, self._chunks))
         time_before = self._state[:, 0].copy()
-        self._state[:] = self._out[:, -1]
+        self._advance()
         # MuJoCo resets an environment whose accelerations go bad (and rollout stops stepping
         # it); both show as a clock that did not advance by the control period.
         advanced = self._state[:, 0] - time_before
@@ -208,15 +259,18 @@ class MujocoCPUBackend(SimBackend):
 
     def memory(self) -> dict[str, int]:
         """``models``: the stepping models' buffers; ``data``: one MjData per model and pool
-        thread at most (their contact/constraint arenas are reserved address space, resident
-        only as used, and not counted); ``state``: the state, output and control arrays."""
-        data = sum(mujoco.MjData(m).nbuffer for m in self.models) * self.nthread
+        thread at most, or with ``sleep`` one per env (their contact/constraint arenas are
+        reserved address space, resident only as used, and not counted); ``state``: the state,
+        output and control arrays."""
+        if self.sleep:
+            data = sum(mujoco.MjData(b.model).nbuffer * len(ids) for ids, b in self._batches)
+        else:
+            data = sum(mujoco.MjData(m).nbuffer for m in self.models) * self.nthread
         arrays = self._state.nbytes + self._out.nbytes + self._control.nbytes
         return {"models": sum(m.nbuffer for m in self.models), "data": data, "state": arrays}
 
     def step_held(self) -> None:
-        list(self._pool.map(self._run, self._chunks))
-        self._state[:] = self._out[:, -1]
+        self._advance()
 
     def close(self) -> None:
         self._pool.shutdown(wait=True)
