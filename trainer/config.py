@@ -65,9 +65,9 @@ class PhysicsConfig(_Checked):
     sleep: bool = False
     """CPU backend: let objects at rest sleep (MuJoCo's sleeping islands: a resting object leaves
     the collision and constraint pipeline until something touches it). The bin's physics runs
-    up to ~2x faster (``bench/cpu_sleep.py``). A sleeping island is not part of MuJoCo's state
-    vector: a checkpoint restores every object awake, so a resumed run does not continue bit for
-    bit, and the backend keeps one MjData per env."""
+    up to ~2x faster (``bench/env_throughput.py --sleep``). A sleeping island is not part of
+    MuJoCo's state vector: a checkpoint restores every object awake, so a resumed run does not
+    continue bit for bit, and the backend keeps one MjData per env."""
     table_size: tuple[float, float, float] = bounded((0.4, 0.4, 0.02), gt=0)
     """Half-sizes of the table top (m); its top surface is at z = 0."""
     table_friction: tuple[float, float, float] = bounded((0.8, 0.005, 0.0001), ge=0)

@@ -55,12 +55,12 @@ def state_offset(model: mujoco.MjModel, component: int, within: int = FULL) -> i
 def state_columns(model: mujoco.MjModel, components: int, within: int) -> np.ndarray:
     """Columns of a ``within`` state (a superset of ``components``) that hold the
     ``components`` state, in the order of a ``components`` state."""
-    columns = [
-        np.arange(start, start + mujoco.mj_stateSize(model, bit))
-        for bit in (1 << i for i in range(int(mujoco.mjtState.mjNSTATE)))
-        if components & bit
-        for start in (state_offset(model, bit, within),)
-    ]
+    columns = []
+    for i in range(int(mujoco.mjtState.mjNSTATE)):
+        bit = 1 << i
+        if components & bit:
+            start = state_offset(model, bit, within)
+            columns.append(np.arange(start, start + mujoco.mj_stateSize(model, bit)))
     return np.concatenate(columns)
 
 
