@@ -8,7 +8,9 @@ Ctrl-C in the terminal reaches every worker of the process group, which print tr
   the pool) and makes the worker die with its parent (Linux: ``PR_SET_PDEATHSIG``; everywhere:
   a thread that watches the parent pid).
 - ``sigint_blocked`` wraps ``submit`` (which spawns workers): a worker starts with SIGINT
-  blocked, so a Ctrl-C during its start-up stays pending until ``init`` discards it.
+  blocked, so a Ctrl-C during its start-up stays pending until ``init`` discards it; and the
+  build's own KeyboardInterrupt waits until ``submit`` has returned (raised in the middle of a
+  spawn, it would leave the new worker reading a half-sent start-up message: a traceback).
 - ``stop`` kills the workers at once when the build is interrupted.
 
 This module imports only the standard library: the pool unpickles the initializer before
@@ -32,18 +34,32 @@ _PR_SET_PDEATHSIG = 1  # from <linux/prctl.h>
 
 @contextmanager
 def sigint_blocked() -> Iterator[None]:
-    """Block SIGINT in this thread for the block. A process spawned meanwhile inherits the mask,
-    so a Ctrl-C to the terminal's process group while it is still starting stays pending instead
-    of printing a KeyboardInterrupt traceback. Here, a Ctrl-C is delivered when the block ends
-    (or at once, by another thread: Python then raises it in the main thread as usual)."""
-    if not hasattr(signal, "pthread_sigmask"):  # Windows: no signal masks
-        yield
-        return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    """Hold Ctrl-C off for the block; it takes effect when the block ends.
+
+    SIGINT is blocked in this thread, so a process spawned meanwhile inherits the mask and a
+    Ctrl-C to the terminal's process group while it is still starting stays pending instead of
+    printing a KeyboardInterrupt traceback. The mask alone does not shield this thread: the
+    kernel hands the signal to another thread, and Python raises KeyboardInterrupt here at the
+    next bytecode. So in the main thread, Python's SIGINT handler is also replaced for the
+    block by one that only notes the signal; the old handler runs once the block is over."""
+    noted: list[int] = []
+    handler = None
+    if threading.current_thread() is threading.main_thread():
+        handler = signal.signal(signal.SIGINT, lambda signum, frame: noted.append(signum))
+    mask = None
+    if hasattr(signal, "pthread_sigmask"):  # Windows: no signal masks
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        if mask is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        if handler is not None:
+            signal.signal(signal.SIGINT, handler)
+            if noted and callable(handler):
+                handler(signal.SIGINT, None)  # Python's default: raise KeyboardInterrupt
+            elif noted and handler == signal.SIG_DFL:
+                signal.raise_signal(signal.SIGINT)
 
 
 def init(parent_pid: int) -> None:
