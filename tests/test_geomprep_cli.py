@@ -226,7 +226,7 @@ def test_ctrl_c_while_workers_start_prints_aborted_only(box_data):
 
 
 @pytest.mark.skipif(not hasattr(signal, "pthread_sigmask"), reason="POSIX signal masks")
-def test_ctrl_c_during_a_worker_spawn_waits_for_the_spawn_to_finish():
+def test_ctrl_c_during_a_worker_spawn_waits_for_the_spawn_to_finish(request):
     """A Ctrl-C that the kernel hands to another thread of the build (the main thread blocks it)
     must not raise KeyboardInterrupt inside ``sigint_blocked``: raised in the middle of a spawn,
     it left the new worker reading a half-sent start-up message, and its traceback reached the
@@ -235,6 +235,10 @@ def test_ctrl_c_during_a_worker_spawn_waits_for_the_spawn_to_finish():
 
     from geomprep import workers
 
+    # As in a terminal: a test run started in the background (`cmd &`) inherits an ignored
+    # SIGINT, and the block then rightly raises nothing.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    request.addfinalizer(lambda: signal.signal(signal.SIGINT, previous))
     steps = []
     with pytest.raises(KeyboardInterrupt), workers.sigint_blocked():
         killer = threading.Thread(target=os.kill, args=(os.getpid(), signal.SIGINT))
