@@ -79,6 +79,37 @@ def test_running_norm_matches_batch_statistics() -> None:
     torch.testing.assert_close(norm.denormalize(norm(data[:5])), data[:5], atol=1e-4, rtol=0)
 
 
+def test_point_encoder_equals_activation_on_every_point_then_max() -> None:
+    # The encoder activates after the max over points (cheaper); that must be the PointNet of
+    # an activation on every point followed by a max, in values and in gradients.
+    from trainer.tasks.spec import observation_spec
+
+    cfg = load_train_config(env={"representation": "pc32"}, ppo={"pointnet_hidden": (16, 24)})
+    spec = observation_spec(cfg.env, num_envs=6)["observation"]
+    encoder = Agent(spec, cfg.ppo).policy_net.encoder
+    torch.manual_seed(0)
+    points = torch.randn(6, 32, 3)
+    weights = torch.randn(6, 24)
+
+    def reference(x: torch.Tensor) -> torch.Tensor:
+        per_point = torch.nn.functional.elu(encoder.points(x))
+        return per_point.amax(dim=-2)
+
+    ours = encoder.points_activation(encoder.points(points).max(dim=-2).values)
+    theirs = reference(points)
+    torch.testing.assert_close(ours, theirs, rtol=0, atol=0)
+    grads = []
+    for out in (ours, theirs):
+        encoder.zero_grad()
+        (out * weights).sum().backward(retain_graph=True)
+        grads.append([p.grad.clone() for p in encoder.points.parameters()])
+    for a, b in zip(*grads, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+    # a checkpoint of the per-point MLP with its last ELU (the earlier form) loads as is
+    keys = set(encoder.points.state_dict())
+    assert keys == {"0.weight", "0.bias", "2.weight", "2.bias"}
+
+
 def test_loss_sees_updated_normalizers(builtin_data: Config) -> None:
     """The collected log-probs and the loss's log-probs come from the same policy even after the
     observation statistics move (the loss module holds references to the buffers)."""

@@ -120,7 +120,11 @@ class Encoder(nn.Module):
         self.norm = norm
         self.out_dim = shapes.proprio[0]
         if norm.is_cloud:
-            self.points = mlp([3, *cfg.pointnet_hidden])
+            # The last activation is applied after the max over points: ELU is increasing, so
+            # ELU(max) == max(ELU) exactly, on P times fewer values. The state-dict keys are
+            # those of the full per-point MLP, so checkpoints of either form load.
+            self.points = mlp([3, *cfg.pointnet_hidden], last_activation=False)
+            self.points_activation = nn.ELU()
             self.out_dim += cfg.pointnet_hidden[-1]
         else:
             self.points = None
@@ -136,7 +140,9 @@ class Encoder(nn.Module):
     ) -> torch.Tensor:
         proprio, obj = self.norm(proprio, obj)
         if self.points is not None:
-            obj = self.points(obj).amax(dim=-2)
+            # max, not amax: its backward scatters into the argmax, where amax's builds and
+            # divides a tie mask as large as the per-point features (the update's main cost).
+            obj = self.points_activation(self.points(obj).max(dim=-2).values)
         parts = [proprio, obj]
         if self.context is not None:
             features = self.context(self.norm.context(context))
