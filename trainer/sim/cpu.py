@@ -108,7 +108,8 @@ class MujocoCPUBackend(SimBackend):
             row = np.empty(self.nstate)
             mujoco.mj_getState(m, data, row, FULL)
             self._state[env_model == k] = row
-        self._out = np.empty((self.num_envs, substeps, self.nstate))
+        # rollout's per-substep output (unused with sleep, which steps persistent batches)
+        self._out = np.empty((0 if sleep else self.num_envs, substeps, self.nstate))
         # Controls are held over the control period; rollout wants one row per physics step.
         self._control = np.zeros((self.num_envs, substeps, mujoco.mj_stateSize(first, CONTROL)))
         self._chunks = self._make_chunks()
