@@ -4,8 +4,8 @@ For every variant (the default physics and script, then one change each) and eve
 randomized trials of ``trainer.scripted.run_scripted_grasp`` (one batch, all objects), with the
 target's trajectory recorded to tell the failures apart:
 
-* ``pushed``: the hand moved the object by > 2 cm sideways before it closed (approach/descent
-  knocked it: hand geometry or approach);
+* ``pushed``: it never rose 2 cm and the hand had moved it > 2 cm sideways by the end of the
+  close (the approach, descent or closing fingers knocked it: hand geometry or approach);
 * ``no grip``: the object never rose 2 cm (the fingers closed without holding it);
 * ``dropped``: it rose >= 2 cm but did not reach the lift height (the grip slipped: friction,
   squeeze force, contact quality);

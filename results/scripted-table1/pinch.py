@@ -1,0 +1,374 @@
+"""A scripted fingertip pinch (thumb tip against index tip, at table height) on the small and
+flat Table I objects: can this hand lift the dice, the knife, the tuna can and the plate at all?
+
+The top grasp of ``trainer.scripted`` (palm down, fingers curling toward the palm) closes the
+fingertips beside or over a 1.6 cm dice or a knife lying flat (``causes.py``). Here the hand
+pinches instead, the way a person picks a coin:
+
+* **Joint targets.** Thumb rotated to ``thumb_rot`` (-1.29 rad: its tip then meets the index
+  tip), ring and little finger curled away (-1.571), the middle finger curled away or moving with
+  the index (``middle``). Open: thumb flexion ``open[0]``, index flexion ``open[1]``; the close
+  ramps the commands linearly to ``closed`` (past the configuration where the tips meet, so the
+  servos keep squeezing). Thumb and index tips meet ~4 cm along the fingers from the palm
+  keypoint and ~5 cm below it: the squeeze runs roughly along the finger axis.
+* **Orientation.** Palm down, then pitched ``pitch`` degrees fingertips-down and rolled ``roll``
+  degrees about the finger axis, so that the thumb and index tips are the hand's lowest points,
+  level with each other (the untilted thumb tip hangs ~2 cm below the index tip and would meet
+  the table first) with the next-lowest link (the thumb's middle link) ~1 cm higher. The hand
+  turns about the vertical so that the squeeze runs across the target's narrowest horizontal
+  width (the plate: radially across its rim, see below).
+* **Height.** Forward kinematics of the hand (MuJoCo on the env's model, hand joints only) gives,
+  for every point of the closing ramp, the lowest point of the two fingertip capsules; the palm
+  command follows it so that the fingertips stay ``clearance`` above the table while they close
+  (they would otherwise rise ~1 cm). The pinch point (the middle of the two tip pads where their
+  gap equals the target's width) goes to the target's centre.
+* **The plate.** Wider than the hand opens (26 cm): the pinch point goes to its rim on the side
+  toward the robot, ``rim_inset`` inside its outer radius, the thumb outside (sliding under the
+  rim's lip) and the index inside, squeezing radially.
+* Phases: approach above the pinch pose (hand open), descend, close, lift ``lift``, hold 1 s.
+
+Each trial is classified from the target's trajectory as ``causes.py`` does: ``lifted`` (the
+env's success: lifted by 0.2 m), ``dropped`` (rose >= 2 cm, not to 0.2 m), ``no grip`` (never rose
+2 cm), ``pushed`` (moved > 2 cm sideways before the close began, here the end of the descent:
+in a pinch the first tip to arrive moves the object by design). Also recorded: the highest rise,
+and the lowest thumb / index pad (fingertip site) height above the table during the close.
+
+Run from the repository root with the Table I objects built in ``data/`` (one MuJoCo thread,
+one torch thread; ~20-40 s per variant on a busy 2-core machine):
+
+    python results/scripted-table1/pinch.py [--variants base,...] [--objects ...] [--trials 10]
+
+Prints a Markdown table per variant and writes ``pinch.csv`` beside this file (one row per
+variant and object). ``--grid`` adds a small geometry grid (pitch x clearance x squeeze).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import itertools
+import math
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import torch
+from tensordict import TensorDict
+
+from geomprep.rotations import matrix_to_axis_angle, quat_to_matrix
+from trainer import constants as C
+from trainer.config import load_env_config
+from trainer.tasks import GraspTask, make_env
+
+OBJECTS = ("062_dice", "032_knife", "007_tuna_fish_can", "029_plate")
+RIM_MIN_WIDTH = 0.15
+"""Targets whose narrowest horizontal width exceeds this (the plate) are pinched at the rim."""
+
+
+@dataclass(frozen=True)
+class Pinch:
+    """Timing (actions), joint targets (rad) and geometry (m, degrees) of the scripted pinch."""
+
+    approach_steps: int = 45
+    descend_steps: int = 35
+    close_steps: int = 40
+    settle_steps: int = 10
+    """Actions with the grip closed before the lift."""
+    lift_steps: int = 60
+    hold_steps: int = 30
+    hover: float = 0.08
+    lift: float = 0.35
+    lift_rate: float = 0.5
+    pitch: float = 20.0
+    """Fingertips-down tilt of the palm (degrees)."""
+    roll: float = 5.0
+    """Tilt about the finger axis (degrees; positive lowers the index side)."""
+    thumb_rot: float = -1.29
+    open: tuple[float, float] = (0.0, -0.4)
+    """Thumb flexion, index flexion when open."""
+    closed: tuple[float, float] = (0.8, -1.2)
+    """Thumb flexion, index flexion commanded at the end of the close."""
+    middle: str = "curled"
+    """``curled`` (out of the way) or ``index`` (moves with the index finger)."""
+    clearance: float = 0.003
+    """Lowest fingertip point above the table during the close."""
+    rim_inset: float = 0.015
+    """Plate: pinch point this far inside the rim's outer radius."""
+    handle: bool = False
+    """Long flat objects: pinch the middle of the thicker half (the knife's handle) instead of
+    the bounding box's centre."""
+    follow: bool = False
+    """Lower the palm with the fingertips' rise through the whole close, not only until the
+    pads' gap reaches the target's width (they ride over a small object instead of stopping)."""
+
+    @property
+    def total_steps(self) -> int:
+        return (self.approach_steps + self.descend_steps + self.close_steps + self.settle_steps
+                + self.lift_steps + self.hold_steps)
+
+    def joints(self, frac: float) -> np.ndarray:
+        """Actuator targets (5,) at closing fraction ``frac`` (0 open, 1 closed)."""
+        th = self.open[0] + frac * (self.closed[0] - self.open[0])
+        index = self.open[1] + frac * (self.closed[1] - self.open[1])
+        middle = index if self.middle == "index" else -1.571
+        return np.array([self.thumb_rot, th, index, middle, -1.571])
+
+    def down(self) -> np.ndarray:
+        """The world's down direction in the palm frame (palm down = +y)."""
+        a, b = math.radians(self.pitch), math.radians(self.roll)
+        return np.array([math.sin(b), math.cos(b) * math.cos(a), math.cos(b) * math.sin(a)])
+
+
+class HandFK:
+    """Palm-frame forward kinematics of the hand (couplings applied by hand), from the model."""
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self.adr = {n: int(model.joint(n).qposadr[0]) for n in C.SIH_JOINTS}
+        self.palm = model.body("palm").id
+        self.tip_geoms = [g for g in range(model.ngeom)
+                          if model.geom_bodyid[g] in (model.body("th_distal").id,
+                                                      model.body("if_distal").id)]
+
+    def __call__(self, act: np.ndarray, down: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """(thumb pad, index pad) positions in the palm frame and the lowest fingertip-capsule
+        point along ``down`` (palm frame) for actuator targets ``act`` (5,)."""
+        th_rot, th, index, middle, ring = act
+        values = {"th_rot": th_rot, "th_flex": th, "th_distal": th, "if_proximal": index,
+                  "if_distal": index, "mf_proximal": middle, "mf_distal": middle,
+                  "rf_proximal": ring, "rf_distal": ring, "lf_proximal": ring, "lf_distal": ring}
+        for name, value in values.items():
+            self.data.qpos[self.adr[name]] = value
+        mujoco.mj_kinematics(self.model, self.data)
+        rot, origin = self.data.xmat[self.palm].reshape(3, 3), self.data.xpos[self.palm]
+        local = lambda x: rot.T @ (x - origin)  # noqa: E731
+        low = -np.inf
+        for g in self.tip_geoms:
+            axis = rot.T @ self.data.geom_xmat[g].reshape(3, 3)[:, 2]
+            centre = local(self.data.geom_xpos[g])
+            radius, half = self.model.geom_size[g][:2]
+            low = max(low, abs(axis @ down) * half + centre @ down + radius)
+        pads = [local(self.data.site_xpos[self.model.site(s).id]) for s in ("tip_th", "tip_if")]
+        return pads[0], pads[1], float(low)
+
+
+def pinch_targets(
+    env: GraspTask, rim_inset: float, handle: bool = False
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Per env: the pinch point (E, 3, world; its height unused), the horizontal squeeze
+    direction from the index pad to the thumb pad (E, 3) and the width to pinch (E,)."""
+    obj_pos, obj_quat = env.target_pose()
+    rot = quat_to_matrix(obj_quat)
+    ids = env.target_objects()
+    center = obj_pos + (rot @ env.objects.bbox_center[ids][..., None])[..., 0]
+    axes = rot @ env.objects.bbox_rotation[ids]
+    half = 0.5 * env.objects.bbox_extents[ids]
+    angles = torch.linspace(0, math.pi, 25, device=obj_pos.device)[:-1]
+    dirs = torch.stack([angles.cos(), angles.sin(), torch.zeros_like(angles)], -1)
+    width = ((dirs @ axes).abs() * half[:, None, :]).sum(-1)  # (E, A)
+    narrow, k = width.min(-1)
+    squeeze = dirs[k]
+    # The squeeze points (index -> thumb) roughly against the fingers; keep the fingers near
+    # their home direction (home palm z, away from the robot): squeeze toward the robot.
+    home_finger = env.home_rot[:, 2]
+    squeeze = torch.where(((squeeze @ home_finger) > 0)[:, None], -squeeze, squeeze)
+    rim = narrow > RIM_MIN_WIDTH
+    if handle:
+        # Long, flat objects (the knife): pinch the thicker half's middle (the handle, not
+        # the thin blade), from the surface samples' heights along the long horizontal axis.
+        pts = obj_pos[:, None] + (rot[:, None] @ env.objects.points[ids][..., None])[..., 0]
+        long_dir = torch.linalg.cross(squeeze, torch.tensor([0.0, 0.0, 1.0]).expand_as(squeeze),
+                                      dim=-1)
+        along = ((pts - center[:, None]) * long_dir[:, None]).sum(-1)  # (E, P)
+        top_pos = torch.where(along > 0, pts[..., 2], -1.0).amax(-1)
+        top_neg = torch.where(along < 0, pts[..., 2], -1.0).amax(-1)
+        sign = torch.where(top_pos > top_neg, 1.0, -1.0)
+        half_len = along.abs().amax(-1)
+        elongated = (half_len > 2 * narrow) & ~rim
+        shift = torch.where(elongated, sign * 0.5 * half_len, torch.zeros_like(half_len))
+        center = center + shift[:, None] * long_dir
+    # Plate: a point on its rim toward the robot (-home finger), squeezing radially outward.
+    outward = -home_finger.expand_as(squeeze)
+    radius = ((outward[:, None, :] @ axes).abs()[:, 0] * half).sum(-1)
+    rim_point = center + outward * (radius[:, None] - rim_inset)
+    point = torch.where(rim[:, None], rim_point, center)
+    squeeze = torch.where(rim[:, None], outward, squeeze)
+    return point, squeeze, torch.where(rim, torch.full_like(narrow, 0.01), 2 * narrow)
+
+
+def palm_rotation(script: Pinch, squeeze_palm: np.ndarray, squeeze: torch.Tensor) -> torch.Tensor:
+    """(E, 3, 3) palm orientations: the palm-frame ``down`` to world -z and the palm-frame
+    squeeze direction (horizontal part) to the world ``squeeze`` (E, 3)."""
+    down = script.down()
+    s = squeeze_palm - (squeeze_palm @ down) * down
+    s /= np.linalg.norm(s)
+    palm = torch.tensor(np.stack([s, np.cross(down, s), down], -1), dtype=torch.float32)
+    world_down = torch.tensor([0.0, 0.0, -1.0]).expand_as(squeeze)
+    world = torch.stack([squeeze, torch.linalg.cross(world_down, squeeze, dim=-1), world_down], -1)
+    return world @ palm.T
+
+
+def plan_pinch(env: GraspTask, script: Pinch, fk: HandFK) -> dict:
+    point, squeeze, width = pinch_targets(env, script.rim_inset, script.handle)
+    down = script.down()
+    fracs = np.linspace(0.0, 1.0, 41)
+    table = [fk(script.joints(f), down) for f in fracs]
+    gaps = np.array([np.linalg.norm(t[0] - t[1]) for t in table])
+    last = int(gaps.argmin()) + 1  # past it the commanded tips would pass through each other
+    keypoint = np.array(C.SIH_PALM_KEYPOINT)
+    # Closing fraction at which the pad gap equals each target's width (contact).
+    contact = np.interp(-width.numpy(), -gaps[:last], fracs[:last])  # gaps fall with frac
+    squeeze_palm = table[0][0] - table[0][1]
+    rot = palm_rotation(script, squeeze_palm, squeeze)
+    E = env.num_envs
+    # Keypoint offset from the pinch point, in the world, and the keypoint height per fraction.
+    offset = torch.zeros(E, 3)
+    height = np.zeros((E, len(fracs)))
+    lows = np.array([t[2] for t in table])
+    for i in range(E):
+        j = int(np.clip(np.searchsorted(fracs, contact[i]), 0, len(fracs) - 1))
+        pinch_palm = 0.5 * (table[j][0] + table[j][1])
+        offset[i] = rot[i] @ torch.tensor(keypoint - pinch_palm, dtype=torch.float32)
+        stop = len(fracs) - 1 if script.follow else j  # the fingers stop at contact
+        low = lows[np.minimum(np.arange(len(fracs)), stop)]
+        height[i] = script.clearance + low - keypoint @ down
+    goal = point + offset
+    return {"goal": goal, "rot": rot, "height": torch.tensor(height, dtype=torch.float32),
+            "fracs": fracs}
+
+
+def pinch_action(env: GraspTask, script: Pinch, step: int, plan: dict) -> torch.Tensor:
+    """The action (E, 11) for every env at episode step ``step``."""
+    goal = plan["goal"].clone()
+    t0 = script.approach_steps
+    t1 = t0 + script.descend_steps
+    t2 = t1 + script.close_steps
+    t3 = t2 + script.settle_steps
+    frac = min(max((step - t1 + 1) / script.close_steps, 0.0), 1.0)
+    k = int(round(frac * (len(plan["fracs"]) - 1)))
+    goal[:, 2] = plan["height"][:, k]
+    if step < t0:
+        goal[:, 2] += script.hover
+    elif step < t1:
+        goal[:, 2] += script.hover * (1.0 - (step - t0 + 1) / script.descend_steps)
+    elif step >= t3:
+        goal[:, 2] += script.lift
+    act = torch.tensor(script.joints(frac), dtype=torch.float32)
+    hand = 2 * (act - env.hand_open) / (env.hand_closed - env.hand_open) - 1
+    robot = env.cfg.robot
+    rate = script.lift_rate if step >= t3 else 1.0
+    command_pos, command_rot = env.state["target_pos"], env.state["target_rot"]
+    move = ((goal - command_pos) / robot.pos_step).clamp(-rate, rate)
+    turn = matrix_to_axis_angle(plan["rot"] @ command_rot.transpose(1, 2)) / robot.rot_step
+    return torch.cat([move, turn.clamp(-1.0, 1.0), hand.expand(env.num_envs, 5)], dim=-1)
+
+
+def run_pinch(env: GraspTask, script: Pinch, objects: tuple[str, ...], name: str) -> list[dict]:
+    """Reset, run the pinch in every env, classify every trial; one row per object."""
+    env.reset()
+    fk = HandFK(env.model)
+    plan = plan_pinch(env, script, fk)
+    lifted = torch.zeros(env.num_envs, dtype=torch.bool)
+    track, tips = [], []
+    for step in range(script.total_steps):
+        action = pinch_action(env, script, step, plan)
+        td = env.step(TensorDict({"action": action}, batch_size=env.batch_size))
+        lifted |= td["next", "success"][:, 0]
+        track.append(env.target_pose()[0].clone())
+        tips.append(env.kinematics.forward(env.backend.qpos).site_pos[:, 1:3, 2].clone())
+    pos, tip_z = torch.stack(track), torch.stack(tips)  # (T, E, 3), (T, E, 2)
+    t1 = script.approach_steps + script.descend_steps
+    t2 = t1 + script.close_steps
+    start = pos[0]
+    pushed = (pos[t1 - 1, :, :2] - start[:, :2]).norm(dim=-1) > 0.02
+    rise = (pos[:, :, 2] - start[:, 2]).amax(0)
+    rose = rise >= 0.02
+    ids = env.target_objects()
+    rows = []
+    for k, obj in enumerate(objects):
+        m = ids == k
+        rows.append({
+            "variant": name, "object": obj, "trials": int(m.sum()),
+            "lifted": int(lifted[m].sum()),
+            "dropped": int((rose & ~lifted)[m].sum()),
+            "no_grip": int((~rose & ~pushed)[m].sum()),
+            "pushed": int((~rose & pushed)[m].sum()),
+            "max_rise_cm": round(float(rise[m].max()) * 100, 1),
+            "median_rise_cm": round(float(rise[m].median()) * 100, 1),
+            "thumb_pad_min_cm": round(float(tip_z[t1:t2, m, 0].min()) * 100, 1),
+            "index_pad_min_cm": round(float(tip_z[t1:t2, m, 1].min()) * 100, 1),
+        })
+    return rows
+
+
+BASE = Pinch()
+VARIANTS: dict[str, Pinch] = {
+    "base": BASE,
+    "middle": replace(BASE, middle="index"),
+    "pitch30": replace(BASE, pitch=30.0),
+    "pitch10": replace(BASE, pitch=10.0),
+    "press": replace(BASE, clearance=-0.003),
+    "high": replace(BASE, clearance=0.008),
+    "soft": replace(BASE, closed=(0.6, -1.0)),
+    "press6": replace(BASE, clearance=-0.006),
+    "press+follow": replace(BASE, clearance=-0.003, follow=True),
+    "press6+follow": replace(BASE, clearance=-0.006, follow=True),
+    "pitch30+press": replace(BASE, pitch=30.0, clearance=-0.003),
+    "pitch30+press+follow": replace(BASE, pitch=30.0, clearance=-0.003, follow=True),
+    "press+middle": replace(BASE, clearance=-0.003, middle="index"),
+    "press6+handle": replace(BASE, clearance=-0.006, handle=True),
+    "press10+handle": replace(BASE, clearance=-0.010, handle=True),
+    "press6+follow+handle": replace(BASE, clearance=-0.006, follow=True, handle=True),
+}
+GRID = {"pitch": (15.0, 20.0, 25.0), "clearance": (-0.002, 0.002, 0.006),
+        "closed": ((0.6, -1.0), (0.8, -1.2), (1.0, -1.4))}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--variants", default=",".join(VARIANTS))
+    parser.add_argument("--objects", default=",".join(OBJECTS))
+    parser.add_argument("--trials", type=int, default=10)
+    parser.add_argument("--data-dir", type=Path, default=Path("data"))
+    parser.add_argument("--grid", action="store_true", help="also scan pitch x clearance x squeeze")
+    parser.add_argument("--out", type=Path, default=Path(__file__).with_name("pinch.csv"))
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    objects = tuple(args.objects.split(","))
+    variants = {n: VARIANTS[n] for n in args.variants.split(",") if n}
+    if args.grid:
+        for values in itertools.product(*GRID.values()):
+            params = dict(zip(GRID, values, strict=True))
+            variants["grid_" + "_".join(f"{k}={v}" for k, v in params.items())] = replace(
+                BASE, **params)
+    cfg = load_env_config(
+        num_envs=args.trials * len(objects), objects=",".join(objects), data_dir=args.data_dir,
+        representation="com", nthread=1,
+    )
+    all_rows: list[dict] = []
+    for name, script in variants.items():
+        t = time.perf_counter()
+        env = make_env(cfg, seed=0)  # the same initial states for every variant
+        rows = run_pinch(env, script, objects, name)
+        env.close()
+        all_rows += rows
+        print(f"\n### {name} ({sum(r['lifted'] for r in rows)}/"
+              f"{sum(r['trials'] for r in rows)} lifted, {time.perf_counter() - t:.0f} s)\n")
+        print("| object | lifted | dropped | no grip | pushed | max rise cm | thumb / index "
+              "pad min cm |")
+        print("|---|---:|---:|---:|---:|---:|---:|")
+        for r in rows:
+            print(f"| {r['object']} | {r['lifted']} | {r['dropped']} | {r['no_grip']} | "
+                  f"{r['pushed']} | {r['max_rise_cm']} | {r['thumb_pad_min_cm']} / "
+                  f"{r['index_pad_min_cm']} |", flush=True)
+        with open(args.out, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(all_rows[0]))
+            writer.writeheader()
+            writer.writerows(all_rows)
+
+
+if __name__ == "__main__":
+    main()
