@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 from tensordict import TensorDict
@@ -67,28 +68,55 @@ class ScriptedGrasp:
         )
 
 
-def grasp_frame(env: GraspTask) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Per env: the target's bbox centre (E, 3) and half-height (E,) in the world, and the
-    palm-down rotation (E, 3, 3) whose finger axis lies across the target's narrowest
-    horizontal width."""
+def target_box(env: GraspTask) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Per env, the target's bounding box in the world: centre (E, 3), axes as columns
+    (E, 3, 3) and half-extents (E, 3)."""
     obj_pos, obj_quat = env.target_pose()
     rot = quat_to_matrix(obj_quat)
     ids = env.target_objects()
     center = obj_pos + (rot @ env.objects.bbox_center[ids][..., None])[..., 0]
-    axes = rot @ env.objects.bbox_rotation[ids]  # (E, 3, 3) box axes as columns
-    half = 0.5 * env.objects.bbox_extents[ids]  # (E, 3)
-    half_height = (axes[:, 2, :].abs() * half).sum(-1)
-    angles = torch.linspace(0, math.pi, 13, device=obj_pos.device)[:-1]
+    return center, rot @ env.objects.bbox_rotation[ids], 0.5 * env.objects.bbox_extents[ids]
+
+
+def narrowest_horizontal(
+    axes: torch.Tensor, half: torch.Tensor, samples: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The box's narrowest horizontal half-width (E,) and its direction (E, 3), over
+    ``samples`` directions in [0, pi) (either sign of the direction is as narrow)."""
+    angles = torch.linspace(0, math.pi, samples + 1, device=axes.device)[:-1]
     dirs = torch.stack([angles.cos(), angles.sin(), torch.zeros_like(angles)], -1)  # (A, 3)
-    width = ((dirs @ axes).abs() * half[:, None, :]).sum(-1)  # (E, A)
-    finger = dirs[width.argmin(-1)]
+    width = ((dirs @ axes).abs() * half[:, None, :]).sum(-1)  # (E, A) half-widths
+    k = width.argmin(-1)
+    return width.gather(-1, k[:, None])[:, 0], dirs[k]
+
+
+def grasp_frame(env: GraspTask) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Per env: the target's bbox centre (E, 3) and half-height (E,) in the world, and the
+    palm-down rotation (E, 3, 3) whose finger axis lies across the target's narrowest
+    horizontal width."""
+    center, axes, half = target_box(env)
+    half_height = (axes[:, 2, :].abs() * half).sum(-1)
+    _, finger = narrowest_horizontal(axes, half, 12)
     # Of the two signs, take the one nearer the home direction (-y): less wrist turning.
     home_finger = env.home_rot[:, 2]
     finger = torch.where(((finger @ home_finger) < 0)[:, None], -finger, finger)
-    down = torch.tensor([0.0, 0.0, -1.0], device=obj_pos.device).expand_as(finger)
+    down = torch.tensor([0.0, 0.0, -1.0], device=center.device).expand_as(finger)
     palm_x = torch.linalg.cross(down, finger, dim=-1)
     palm_rot = torch.stack([palm_x, down, finger], dim=-1)
     return center, half_height, palm_rot
+
+
+def steer(env: GraspTask, goal: torch.Tensor, rot: torch.Tensor, rate: float = 1.0) -> torch.Tensor:
+    """The hand-pose part of the action (E, 6) that moves the commanded palm keypoint toward
+    ``goal`` (E, 3) at up to ``rate`` of the full speed and turns the commanded orientation
+    toward ``rot`` (E, 3, 3). It steers the command, not the measured hand: the command then
+    settles on the goal exactly and the controllers bring the hand there, with no windup from
+    tracking lag."""
+    robot = env.cfg.robot
+    command_pos, command_rot = env.state["target_pos"], env.state["target_rot"]
+    move = ((goal - command_pos) / robot.pos_step).clamp(-rate, rate)
+    turn = matrix_to_axis_angle(rot @ command_rot.transpose(1, 2)) / robot.rot_step
+    return torch.cat([move, turn.clamp(-1.0, 1.0)], dim=-1)
 
 
 def scripted_action(env: GraspTask, script: ScriptedGrasp, step: int, plan: dict) -> torch.Tensor:
@@ -125,32 +153,28 @@ def scripted_action(env: GraspTask, script: ScriptedGrasp, step: int, plan: dict
     else:  # lift, then hold: the command settles on the lift goal and stays there
         hand[:] = closed
         goal[:, 2] += script.lift
-    # Steer the command (not the measured hand): the command then settles on the goal exactly
-    # and the controllers bring the hand there, with no windup from tracking lag.
-    robot = env.cfg.robot
     lifting = t >= script.approach_steps + script.descend_steps + script.close_steps
     rate = script.lift_rate if lifting else 1.0
-    command_pos, command_rot = env.state["target_pos"], env.state["target_rot"]
-    move = ((goal - command_pos) / robot.pos_step).clamp(-rate, rate)
-    turn = matrix_to_axis_angle(plan["rot"] @ command_rot.transpose(1, 2)) / robot.rot_step
-    turn = turn.clamp(-1.0, 1.0)
-    return torch.cat([move, turn, hand], dim=-1)
+    return torch.cat([steer(env, goal, plan["rot"], rate), hand], dim=-1)
 
 
 def run_scripted_grasp(
     env: GraspTask,
     script: ScriptedGrasp | None = None,
     on_step: Callable[[int], None] | None = None,
+    action_fn: Callable[[GraspTask, Any, int, dict], torch.Tensor] = scripted_action,
 ) -> torch.Tensor:
     """Reset every env, run the script; return (E,) bool: the target was lifted by h_bar at
     some step (the env's ``success``). ``on_step(step)`` is called after every action (e.g. to
-    render a frame)."""
+    render a frame). ``action_fn(env, script, step, plan)`` gives the actions (E, 11) of another
+    script (with a ``total_steps``); ``plan`` starts empty after the reset, for it to fill at
+    step 0."""
     script = script or ScriptedGrasp()
     env.reset()
     plan: dict = {}
     lifted = torch.zeros(env.num_envs, dtype=torch.bool, device=env.device)
     for step in range(script.total_steps):
-        action = scripted_action(env, script, step, plan)
+        action = action_fn(env, script, step, plan)
         td = env.step(TensorDict({"action": action}, batch_size=env.batch_size))
         lifted |= td["next", "success"][:, 0]
         if on_step is not None:

@@ -72,6 +72,37 @@ GRID = {
 }
 
 
+def outcome_rows(
+    name: str, objects: tuple[str, ...], ids: torch.Tensor, pos: torch.Tensor,
+    lifted: torch.Tensor, pushed_at: int,
+) -> list[dict]:
+    """One row per object: its trials classified from the target's positions ``pos`` (T, E, 3)
+    and the env's ``lifted`` (E,); *pushed* looks at the sideways move by step ``pushed_at``."""
+    start = pos[0]
+    pushed = (pos[pushed_at, :, :2] - start[:, :2]).norm(dim=-1) > 0.02
+    rise = (pos[:, :, 2] - start[:, 2]).amax(0)
+    rose = rise >= 0.02
+    rows = []
+    for k, obj in enumerate(objects):
+        m = ids == k
+        rows.append({
+            "variant": name, "object": obj, "trials": int(m.sum()),
+            "lifted": int(lifted[m].sum()),
+            "dropped": int((rose & ~lifted)[m].sum()),
+            "no_grip": int((~rose & ~pushed)[m].sum()),
+            "pushed": int((~rose & pushed)[m].sum()),
+            "max_rise_cm": round(float(rise[m].max()) * 100, 1),
+        })
+    return rows
+
+
+def write_rows(path: Path, rows: list[dict]) -> None:
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
 def run_variant(
     name: str, trials: int, data_dir: Path, objects: tuple[str, ...] = OBJECTS
 ) -> list[dict]:
@@ -87,21 +118,7 @@ def run_variant(
         env, script, on_step=lambda _: track.append(env.target_pose()[0].clone())
     )
     pos = torch.stack(track)  # (T, E, 3)
-    start = pos[0]
-    pushed = (pos[close_end - 1, :, :2] - start[:, :2]).norm(dim=-1) > 0.02
-    rose = (pos[:, :, 2] - start[:, 2]).amax(0) >= 0.02
-    ids = env.target_objects()
-    rows = []
-    for k, obj in enumerate(objects):
-        m = ids == k
-        rows.append({
-            "variant": name, "object": obj, "trials": int(m.sum()),
-            "lifted": int(lifted[m].sum()),
-            "dropped": int((rose & ~lifted)[m].sum()),
-            "no_grip": int((~rose & ~pushed)[m].sum()),
-            "pushed": int((~rose & pushed)[m].sum()),
-            "max_rise_cm": round(float((pos[:, m, 2] - start[m, 2]).amax()) * 100, 1),
-        })
+    rows = outcome_rows(name, objects, env.target_objects(), pos, lifted, close_end - 1)
     env.close()
     return rows
 
@@ -130,10 +147,7 @@ def main() -> None:
         for r in rows:
             print(f"| {r['object']} | {r['lifted']} | {r['dropped']} | {r['no_grip']} | "
                   f"{r['pushed']} | {r['max_rise_cm']} |")
-        with open(out, "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(all_rows[0]))
-            writer.writeheader()
-            writer.writerows(all_rows)
+        write_rows(out, all_rows)
 
 
 def grid(data_dir: Path, trials: int = 6) -> None:
@@ -146,10 +160,7 @@ def grid(data_dir: Path, trials: int = 6) -> None:
         batch = run_variant(name, trials, data_dir, HARD)
         rows += batch
         print(name, [r["lifted"] for r in batch], flush=True)
-        with open(out, "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
+        write_rows(out, rows)
 
 
 if __name__ == "__main__":

@@ -45,7 +45,6 @@ variant and object). ``--grid`` adds a small geometry grid (pitch x clearance x 
 from __future__ import annotations
 
 import argparse
-import csv
 import itertools
 import math
 import time
@@ -55,11 +54,12 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import torch
-from tensordict import TensorDict
+from causes import outcome_rows, write_rows  # beside this file
 
-from geomprep.rotations import matrix_to_axis_angle, quat_to_matrix
+from geomprep.rotations import quat_to_matrix
 from trainer import constants as C
 from trainer.config import load_env_config
+from trainer.scripted import narrowest_horizontal, run_scripted_grasp, steer, target_box
 from trainer.tasks import GraspTask, make_env
 
 OBJECTS = ("062_dice", "032_knife", "007_tuna_fish_can", "029_plate")
@@ -122,7 +122,7 @@ class Pinch:
 
 
 class HandFK:
-    """Palm-frame forward kinematics of the hand (couplings applied by hand), from the model."""
+    """Palm-frame forward kinematics of the hand (the 1:1 couplings applied), from the model."""
 
     def __init__(self, model: mujoco.MjModel) -> None:
         self.model = model
@@ -136,10 +136,9 @@ class HandFK:
     def __call__(self, act: np.ndarray, down: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """(thumb pad, index pad) positions in the palm frame and the lowest fingertip-capsule
         point along ``down`` (palm frame) for actuator targets ``act`` (5,)."""
-        th_rot, th, index, middle, ring = act
-        values = {"th_rot": th_rot, "th_flex": th, "th_distal": th, "if_proximal": index,
-                  "if_distal": index, "mf_proximal": middle, "mf_distal": middle,
-                  "rf_proximal": ring, "rf_distal": ring, "lf_proximal": ring, "lf_distal": ring}
+        driven = [joint for _, joint, _, _ in C.SIH_ACTUATORS]
+        values = dict(zip(driven, act, strict=True))
+        values.update({follower: values[leader] for follower, leader in C.SIH_COUPLINGS})
         for name, value in values.items():
             self.data.qpos[self.adr[name]] = value
         mujoco.mj_kinematics(self.model, self.data)
@@ -160,17 +159,8 @@ def pinch_targets(
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Per env: the pinch point (E, 3, world; its height unused), the horizontal squeeze
     direction from the index pad to the thumb pad (E, 3) and the width to pinch (E,)."""
-    obj_pos, obj_quat = env.target_pose()
-    rot = quat_to_matrix(obj_quat)
-    ids = env.target_objects()
-    center = obj_pos + (rot @ env.objects.bbox_center[ids][..., None])[..., 0]
-    axes = rot @ env.objects.bbox_rotation[ids]
-    half = 0.5 * env.objects.bbox_extents[ids]
-    angles = torch.linspace(0, math.pi, 25, device=obj_pos.device)[:-1]
-    dirs = torch.stack([angles.cos(), angles.sin(), torch.zeros_like(angles)], -1)
-    width = ((dirs @ axes).abs() * half[:, None, :]).sum(-1)  # (E, A)
-    narrow, k = width.min(-1)
-    squeeze = dirs[k]
+    center, axes, half = target_box(env)
+    narrow, squeeze = narrowest_horizontal(axes, half, 24)
     # The squeeze points (index -> thumb) roughly against the fingers; keep the fingers near
     # their home direction (home palm z, away from the robot): squeeze toward the robot.
     home_finger = env.home_rot[:, 2]
@@ -179,7 +169,10 @@ def pinch_targets(
     if handle:
         # Long, flat objects (the knife): pinch the thicker half's middle (the handle, not
         # the thin blade), from the surface samples' heights along the long horizontal axis.
-        pts = obj_pos[:, None] + (rot[:, None] @ env.objects.points[ids][..., None])[..., 0]
+        obj_pos, obj_quat = env.target_pose()
+        rot = quat_to_matrix(obj_quat)
+        local = env.objects.points[env.target_objects()]
+        pts = obj_pos[:, None] + (rot[:, None] @ local[..., None])[..., 0]
         long_dir = torch.linalg.cross(squeeze, torch.tensor([0.0, 0.0, 1.0]).expand_as(squeeze),
                                       dim=-1)
         along = ((pts - center[:, None]) * long_dir[:, None]).sum(-1)  # (E, P)
@@ -211,7 +204,10 @@ def palm_rotation(script: Pinch, squeeze_palm: np.ndarray, squeeze: torch.Tensor
     return world @ palm.T
 
 
-def plan_pinch(env: GraspTask, script: Pinch, fk: HandFK) -> dict:
+def plan_pinch(env: GraspTask, script: Pinch) -> dict:
+    """Per env, from the target's pose after the reset: the keypoint goal (E, 3), the palm
+    orientation (E, 3, 3) and the keypoint height (E, F) over the closing fractions (F,)."""
+    fk = HandFK(env.model)
     point, squeeze, width = pinch_targets(env, script.rim_inset, script.handle)
     down = script.down()
     fracs = np.linspace(0.0, 1.0, 41)
@@ -223,25 +219,26 @@ def plan_pinch(env: GraspTask, script: Pinch, fk: HandFK) -> dict:
     contact = np.interp(-width.numpy(), -gaps[:last], fracs[:last])  # gaps fall with frac
     squeeze_palm = table[0][0] - table[0][1]
     rot = palm_rotation(script, squeeze_palm, squeeze)
-    E = env.num_envs
-    # Keypoint offset from the pinch point, in the world, and the keypoint height per fraction.
-    offset = torch.zeros(E, 3)
-    height = np.zeros((E, len(fracs)))
+    # Per env: the table row where the pads touch the target, the keypoint's offset from the
+    # pinch point there (world), and the keypoint height for every closing fraction.
+    pads = np.array([t[0] + t[1] for t in table]) * 0.5  # (F, 3) pinch points, palm frame
     lows = np.array([t[2] for t in table])
-    for i in range(E):
-        j = int(np.clip(np.searchsorted(fracs, contact[i]), 0, len(fracs) - 1))
-        pinch_palm = 0.5 * (table[j][0] + table[j][1])
-        offset[i] = rot[i] @ torch.tensor(keypoint - pinch_palm, dtype=torch.float32)
-        stop = len(fracs) - 1 if script.follow else j  # the fingers stop at contact
-        low = lows[np.minimum(np.arange(len(fracs)), stop)]
-        height[i] = script.clearance + low - keypoint @ down
+    j = np.clip(np.searchsorted(fracs, contact), 0, len(fracs) - 1)  # (E,)
+    local = torch.tensor(keypoint - pads[j], dtype=torch.float32)  # (E, 3)
+    offset = (rot @ local[..., None])[..., 0]
+    stop = np.full_like(j, len(fracs) - 1) if script.follow else j  # the fingers stop at contact
+    low = lows[np.minimum(np.arange(len(fracs))[None, :], stop[:, None])]  # (E, F)
+    height = script.clearance + low - keypoint @ down
     goal = point + offset
     return {"goal": goal, "rot": rot, "height": torch.tensor(height, dtype=torch.float32),
             "fracs": fracs}
 
 
 def pinch_action(env: GraspTask, script: Pinch, step: int, plan: dict) -> torch.Tensor:
-    """The action (E, 11) for every env at episode step ``step``."""
+    """The action (E, 11) for every env at episode step ``step``; ``plan`` is filled at step 0
+    (``plan_pinch``)."""
+    if step == 0:
+        plan.update(plan_pinch(env, script))
     goal = plan["goal"].clone()
     t0 = script.approach_steps
     t1 = t0 + script.descend_steps
@@ -258,51 +255,34 @@ def pinch_action(env: GraspTask, script: Pinch, step: int, plan: dict) -> torch.
         goal[:, 2] += script.lift
     act = torch.tensor(script.joints(frac), dtype=torch.float32)
     hand = 2 * (act - env.hand_open) / (env.hand_closed - env.hand_open) - 1
-    robot = env.cfg.robot
     rate = script.lift_rate if step >= t3 else 1.0
-    command_pos, command_rot = env.state["target_pos"], env.state["target_rot"]
-    move = ((goal - command_pos) / robot.pos_step).clamp(-rate, rate)
-    turn = matrix_to_axis_angle(plan["rot"] @ command_rot.transpose(1, 2)) / robot.rot_step
-    return torch.cat([move, turn.clamp(-1.0, 1.0), hand.expand(env.num_envs, 5)], dim=-1)
+    return torch.cat([steer(env, goal, plan["rot"], rate), hand.expand(env.num_envs, 5)], dim=-1)
 
 
 def run_pinch(env: GraspTask, script: Pinch, objects: tuple[str, ...], name: str) -> list[dict]:
     """Reset, run the pinch in every env, classify every trial; one row per object."""
-    env.reset()
-    fk = HandFK(env.model)
-    plan = plan_pinch(env, script, fk)
-    lifted = torch.zeros(env.num_envs, dtype=torch.bool)
     track, tips = [], []
-    for step in range(script.total_steps):
-        action = pinch_action(env, script, step, plan)
-        td = env.step(TensorDict({"action": action}, batch_size=env.batch_size))
-        lifted |= td["next", "success"][:, 0]
+
+    def record(_: int) -> None:
         track.append(env.target_pose()[0].clone())
         tips.append(env.kinematics.forward(env.backend.qpos).site_pos[:, 1:3, 2].clone())
+
+    lifted = run_scripted_grasp(env, script, on_step=record, action_fn=pinch_action)
     pos, tip_z = torch.stack(track), torch.stack(tips)  # (T, E, 3), (T, E, 2)
     t1 = script.approach_steps + script.descend_steps
     t2 = t1 + script.close_steps
-    start = pos[0]
-    pushed = (pos[t1 - 1, :, :2] - start[:, :2]).norm(dim=-1) > 0.02
-    rise = (pos[:, :, 2] - start[:, 2]).amax(0)
-    rose = rise >= 0.02
+    # pushed: by the end of the descent (in a pinch the first tip to arrive moves the object)
     ids = env.target_objects()
-    rows = []
-    for k, obj in enumerate(objects):
+    rows = outcome_rows(name, objects, ids, pos, lifted, t1 - 1)
+    rise = (pos[:, :, 2] - pos[0, :, 2]).amax(0)
+    for k, row in enumerate(rows):
         m = ids == k
-        rows.append({
-            "variant": name, "object": obj, "trials": int(m.sum()),
-            "lifted": int(lifted[m].sum()),
-            "dropped": int((rose & ~lifted)[m].sum()),
-            "no_grip": int((~rose & ~pushed)[m].sum()),
-            "pushed": int((~rose & pushed)[m].sum()),
-            "max_rise_cm": round(float(rise[m].max()) * 100, 1),
+        row.update({
             "median_rise_cm": round(float(rise[m].median()) * 100, 1),
             "thumb_pad_min_cm": round(float(tip_z[t1:t2, m, 0].min()) * 100, 1),
             "index_pad_min_cm": round(float(tip_z[t1:t2, m, 1].min()) * 100, 1),
         })
     return rows
-
 
 BASE = Pinch()
 VARIANTS: dict[str, Pinch] = {
@@ -364,10 +344,7 @@ def main() -> None:
             print(f"| {r['object']} | {r['lifted']} | {r['dropped']} | {r['no_grip']} | "
                   f"{r['pushed']} | {r['max_rise_cm']} | {r['thumb_pad_min_cm']} / "
                   f"{r['index_pad_min_cm']} |", flush=True)
-        with open(args.out, "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(all_rows[0]))
-            writer.writeheader()
-            writer.writerows(all_rows)
+        write_rows(args.out, all_rows)
 
 
 if __name__ == "__main__":
