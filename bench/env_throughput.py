@@ -18,10 +18,12 @@ hold in memory.
     python bench/env_throughput.py [--tasks lift,bin] [--envs 256] [--reprs default|com,sdf,...]
                                    [--objects builtin] [--bin-objects 5] [--no-compile]
                                    [--memory-objects ycb] [--memory-bin-objects 10] [--no-memory]
-                                   [--sleep]
+                                   [--sleep] [--noslip 0,5]
 
 ``--sleep`` sets ``[physics] sleep`` (resting objects sleep; the CPU backend then steps through
-persistent ``mujoco.batch.Batch``es): compare a run with it to one without.
+persistent ``mujoco.batch.Batch``es): compare a run with it to one without. ``--noslip`` sets
+``[physics] noslip_iterations``; a comma list builds every task at each value and times them all
+in the same alternating rounds, so the cost of the no-slip solver is a ratio within one run.
 
 ``--reprs default`` (the default) uses each task's own representation (``trainer.config.TASKS``:
 sq for lift, bbox for bin).
@@ -129,10 +131,13 @@ class Stepper:
 
 
 def task_config(args: argparse.Namespace, task: str, envs: int, rep: str, objects: str,
-                bin_objects: int) -> EnvConfig:
+                bin_objects: int, noslip: int | None = None) -> EnvConfig:
+    physics: dict = {"sleep": args.sleep}
+    if noslip is not None:
+        physics["noslip_iterations"] = noslip
     overrides: dict = {"task": task, "num_envs": envs, "objects": objects,
                        "compile": args.compile, "robot": {"kind": args.robot},
-                       "physics": {"sleep": args.sleep}}
+                       "physics": physics}
     if rep != "default":
         overrides["representation"] = rep
     if task == "bin":
@@ -143,38 +148,55 @@ def task_config(args: argparse.Namespace, task: str, envs: int, rep: str, object
     return load_env_config(**overrides)
 
 
+def paired(steppers: dict, a: tuple, b: tuple) -> float:
+    """b's env steps/s over a's: the median of the per-round ratios (the blocks of a round ran
+    back to back)."""
+    return statistics.median(
+        y / x for x, y in zip(steppers[a].env_rates, steppers[b].env_rates, strict=True)
+    )
+
+
 def throughput(args: argparse.Namespace) -> None:
     """All tasks' envs of one env count and representation are built together and timed in
     alternating blocks (``--rounds`` of each), each rate the median over its blocks, so that a
     slow moment of the machine hits every task and the physics-only baseline alike."""
-    print(f"{'task':>5} {'envs':>6} {'repr':>6} {'env steps/s':>12} {'phys steps/s':>13} "
-          f"{'ratio':>6}")
+    noslips = [None] if args.noslip is None else [int(v) for v in args.noslip.split(",")]
+    print(f"{'task':>5} {'envs':>6} {'repr':>6} {'noslip':>6} {'env steps/s':>12} "
+          f"{'phys steps/s':>13} {'ratio':>6}")
     for n in (int(v) for v in args.envs.split(",")):
         for rep in args.reprs.split(","):
             steppers = {}
-            for task in args.tasks.split(","):
-                cfg = task_config(args, task, n, rep, args.objects, args.bin_objects)
-                steppers[task] = Stepper(make_env(cfg), args.steps)
+            for noslip in noslips:
+                for task in args.tasks.split(","):
+                    cfg = task_config(args, task, n, rep, args.objects, args.bin_objects, noslip)
+                    steppers[task, noslip] = Stepper(make_env(cfg), args.steps)
             for _ in range(args.rounds):
                 for stepper in steppers.values():
                     stepper.block()
             rates = {}
-            for task, stepper in steppers.items():
+            for (task, noslip), stepper in steppers.items():
                 env_rate = statistics.median(stepper.env_rates)
                 raw_rate = statistics.median(stepper.raw_rates)
-                rates[task] = env_rate
-                print(f"{task:>5} {n:>6} {stepper.env.cfg.representation:>6} {env_rate:>12.0f} "
-                      f"{raw_rate:>13.0f} {env_rate / raw_rate:>6.2f}")
+                rates[task, noslip] = env_rate
+                iterations = stepper.env.cfg.physics.noslip_iterations
+                print(f"{task:>5} {n:>6} {stepper.env.cfg.representation:>6} {iterations:>6} "
+                      f"{env_rate:>12.0f} {raw_rate:>13.0f} {env_rate / raw_rate:>6.2f}")
                 stepper.env.close()
-            if "bin" in steppers and "lift" in steppers:
-                # Median of the per-round ratios: the two blocks of a round ran back to back.
-                paired = statistics.median(
-                    b / a for a, b in zip(steppers["lift"].env_rates, steppers["bin"].env_rates,
-                                          strict=True)
-                )
-                print(f"bin ({args.bin_objects} objects) / lift env steps/s, {n} envs, repr "
-                      f"{rep}: {rates['bin'] / rates['lift']:.2f} (per-round median "
-                      f"{paired:.2f}; target >= 0.50)")
+
+            for noslip in noslips:
+                if ("bin", noslip) in steppers and ("lift", noslip) in steppers:
+                    at = "" if noslip is None else f", noslip {noslip}"
+                    ratio = rates["bin", noslip] / rates["lift", noslip]
+                    per_round = paired(steppers, ("lift", noslip), ("bin", noslip))
+                    print(f"bin ({args.bin_objects} objects) / lift env steps/s, {n} envs, repr "
+                          f"{rep}{at}: {ratio:.2f} (per-round median {per_round:.2f}; "
+                          "target >= 0.50)")
+            for task in args.tasks.split(","):
+                for noslip in noslips[1:]:
+                    print(f"{task}, {n} envs, repr {rep}: noslip {noslip} / noslip {noslips[0]} "
+                          f"env steps/s: {rates[task, noslip] / rates[task, noslips[0]]:.2f} "
+                          f"(per-round median "
+                          f"{paired(steppers, (task, noslips[0]), (task, noslip)):.2f})")
 
 
 def warp_throughput(args: argparse.Namespace) -> None:
@@ -297,6 +319,8 @@ def main() -> None:
     parser.add_argument("--data-dir", default=None, help="default: the config's data_dir")
     parser.add_argument("--sleep", action=argparse.BooleanOptionalAction, default=False,
                         help="[physics] sleep: resting objects sleep (cpu backend)")
+    parser.add_argument("--noslip", default=None,
+                        help="[physics] noslip_iterations, or a comma list to compare (cpu)")
     parser.add_argument("--steps", type=int, default=20, help="env steps per timed block")
     parser.add_argument("--rounds", type=int, default=5, help="alternating env/physics blocks")
     parser.add_argument(

@@ -198,3 +198,23 @@ def test_compile_failure_falls_back_to_eager(builtin_data: Config) -> None:
         rollout = environment.rollout(2)
     assert torch.isfinite(rollout["next", "reward"]).all()
     environment.close()
+
+
+def test_object_thrown_out_of_reach_is_unstable_not_a_lift(env: GraspTask) -> None:
+    """A contact that launches an object (seen with impratio 10: hundreds of metres up, every
+    speed finite and below MAX_SPEED) truncates the episode with no reward and no success, both
+    once the object is out of reach and while it flies faster than LAUNCH_SPEED."""
+    env.reset()
+    qpos = env.backend.qpos.clone()
+    slot = env.state["target_slot"]
+    z = env.slot_qpos[slot, 2]  # (E,) the target's height in qpos
+    qpos[0, z[0]] = 5.0  # far above any reach: launched
+    qpos[1, z[1]] += 0.5  # lifted by 0.5 m, within reach: a real lift
+    qvel = torch.zeros_like(env.backend.qvel)
+    qvel[2, env.slot_linvel[slot[2], 2]] = 20.0  # shot upward at 20 m/s, still on the table
+    env.backend.set_state(torch.arange(7), qpos, qvel, env.state["ctrl"])
+    td = env._observe(reset=False)
+    assert td["unstable"][:, 0].tolist() == [True, False, True] + [False] * 4
+    assert td["success"][:, 0].tolist()[:2] == [False, True]
+    assert td["truncated"][0, 0] and not td["terminated"][0, 0]
+    assert td["reward"][0, 0] == 0.0 and td["reward"][1, 0] > 0.0

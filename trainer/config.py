@@ -62,6 +62,10 @@ class PhysicsConfig(_Checked):
     """Frictional-to-normal constraint impedance ratio; above 1 makes friction stiffer (less
     creep of a held object), as MuJoCo recommends with elliptic cones."""
     noslip_iterations: int = bounded(0, ge=0)
+    """Passes of MuJoCo's no-slip solver after the main one (0: off). It removes the creep of
+    the soft frictional contacts, which lets a pinched dice or knife slide out of the fingertips
+    (results/scripted-table1: a scripted pinch lifts the dice 0 -> 8 of 10 with 5). Costs ~10 %
+    of the lift task's env steps/s and ~25 % of the bin's on the CPU (docs/benchmarks.md)."""
     sleep: bool = False
     """CPU backend: let objects at rest sleep (MuJoCo's sleeping islands: a resting object leaves
     the collision and constraint pipeline until something touches it). The bin's physics runs

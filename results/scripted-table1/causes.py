@@ -58,6 +58,9 @@ VARIANTS: dict[str, tuple[dict, ScriptedGrasp]] = {
         {"physics": {"finger_friction": (2.0, 0.01, 0.0001)}},
         replace(BASE, grasp_depth=0.22, lateral=0.0),
     ),
+    # Contact creep: MuJoCo's no-slip solver, or stiffer friction (impratio 10).
+    "noslip": ({"physics": {"noslip_iterations": 5}}, BASE),
+    "impratio10": ({"physics": {"impratio": 10.0}}, BASE),
 }
 
 

@@ -39,7 +39,9 @@ one torch thread; ~20-40 s per variant on a busy 2-core machine):
     python results/scripted-table1/pinch.py [--variants base,...] [--objects ...] [--trials 10]
 
 Prints a Markdown table per variant and writes ``pinch.csv`` beside this file (one row per
-variant and object). ``--grid`` adds a small geometry grid (pitch x clearance x squeeze).
+variant and object). ``--grid`` adds a small geometry grid (pitch x clearance x squeeze). A
+variant is a script and EnvConfig overrides: the ``*noslip`` variants turn on MuJoCo's no-slip
+solver (``[physics] noslip_iterations``), ``impratio10`` stiffer friction (see the README).
 """
 
 from __future__ import annotations
@@ -284,24 +286,33 @@ def run_pinch(env: GraspTask, script: Pinch, objects: tuple[str, ...], name: str
         })
     return rows
 
+
 BASE = Pinch()
-VARIANTS: dict[str, Pinch] = {
-    "base": BASE,
-    "middle": replace(BASE, middle="index"),
-    "pitch30": replace(BASE, pitch=30.0),
-    "pitch10": replace(BASE, pitch=10.0),
-    "press": replace(BASE, clearance=-0.003),
-    "high": replace(BASE, clearance=0.008),
-    "soft": replace(BASE, closed=(0.6, -1.0)),
-    "press6": replace(BASE, clearance=-0.006),
-    "press+follow": replace(BASE, clearance=-0.003, follow=True),
-    "press6+follow": replace(BASE, clearance=-0.006, follow=True),
-    "pitch30+press": replace(BASE, pitch=30.0, clearance=-0.003),
-    "pitch30+press+follow": replace(BASE, pitch=30.0, clearance=-0.003, follow=True),
-    "press+middle": replace(BASE, clearance=-0.003, middle="index"),
-    "press6+handle": replace(BASE, clearance=-0.006, handle=True),
-    "press10+handle": replace(BASE, clearance=-0.010, handle=True),
-    "press6+follow+handle": replace(BASE, clearance=-0.006, follow=True, handle=True),
+NOSLIP = {"physics": {"noslip_iterations": 5}}
+"""MuJoCo's no-slip solver: removes the creep of the soft frictional contacts."""
+# name -> (EnvConfig overrides, script)
+VARIANTS: dict[str, tuple[dict, Pinch]] = {
+    "base": ({}, BASE),
+    "middle": ({}, replace(BASE, middle="index")),
+    "pitch30": ({}, replace(BASE, pitch=30.0)),
+    "pitch10": ({}, replace(BASE, pitch=10.0)),
+    "press": ({}, replace(BASE, clearance=-0.003)),
+    "high": ({}, replace(BASE, clearance=0.008)),
+    "soft": ({}, replace(BASE, closed=(0.6, -1.0))),
+    "press6": ({}, replace(BASE, clearance=-0.006)),
+    "press+follow": ({}, replace(BASE, clearance=-0.003, follow=True)),
+    "press6+follow": ({}, replace(BASE, clearance=-0.006, follow=True)),
+    "pitch30+press": ({}, replace(BASE, pitch=30.0, clearance=-0.003)),
+    "pitch30+press+follow": ({}, replace(BASE, pitch=30.0, clearance=-0.003, follow=True)),
+    "press+middle": ({}, replace(BASE, clearance=-0.003, middle="index")),
+    "press6+handle": ({}, replace(BASE, clearance=-0.006, handle=True)),
+    "press10+handle": ({}, replace(BASE, clearance=-0.010, handle=True)),
+    "press6+follow+handle": ({}, replace(BASE, clearance=-0.006, follow=True, handle=True)),
+    "noslip": (NOSLIP, BASE),
+    "press6+noslip": (NOSLIP, replace(BASE, clearance=-0.006)),
+    "press6+handle+noslip": (NOSLIP, replace(BASE, clearance=-0.006, handle=True)),
+    "middle+noslip": (NOSLIP, replace(BASE, middle="index")),
+    "impratio10": ({"physics": {"impratio": 10.0}}, BASE),
 }
 GRID = {"pitch": (15.0, 20.0, 25.0), "clearance": (-0.002, 0.002, 0.006),
         "closed": ((0.6, -1.0), (0.8, -1.2), (1.0, -1.4))}
@@ -322,15 +333,15 @@ def main() -> None:
     if args.grid:
         for values in itertools.product(*GRID.values()):
             params = dict(zip(GRID, values, strict=True))
-            variants["grid_" + "_".join(f"{k}={v}" for k, v in params.items())] = replace(
-                BASE, **params)
-    cfg = load_env_config(
-        num_envs=args.trials * len(objects), objects=",".join(objects), data_dir=args.data_dir,
-        representation="com", nthread=1,
-    )
+            variants["grid_" + "_".join(f"{k}={v}" for k, v in params.items())] = (
+                {}, replace(BASE, **params))
     all_rows: list[dict] = []
-    for name, script in variants.items():
+    for name, (overrides, script) in variants.items():
         t = time.perf_counter()
+        cfg = load_env_config(
+            num_envs=args.trials * len(objects), objects=",".join(objects),
+            data_dir=args.data_dir, representation="com", nthread=1, **overrides,
+        )
         env = make_env(cfg, seed=0)  # the same initial states for every variant
         rows = run_pinch(env, script, objects, name)
         env.close()

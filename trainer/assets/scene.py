@@ -66,6 +66,14 @@ def slot_qpos_addresses(model: mujoco.MjModel, num_slots: int) -> np.ndarray:
     )
 
 
+def slot_qvel_addresses(model: mujoco.MjModel, num_slots: int) -> np.ndarray:
+    """(K,) int: where each slot's free joint starts in qvel (3 linear, world frame; 3 angular)."""
+    return np.array(
+        [model.jnt_dofadr[model.body_jntadr[model.body(slot_name(k)).id]] for k in range(num_slots)],  # noqa: E501
+        dtype=np.int64,
+    )
+
+
 def _matrix_to_quat(rot: np.ndarray) -> np.ndarray:
     """(3, 3) -> (4,) (w, x, y, z), through the project's rotation module."""
     return matrix_to_quat(torch.as_tensor(rot, dtype=torch.float64)).numpy()

@@ -38,7 +38,13 @@ from torchrl.envs import EnvBase
 
 from geomprep.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix, rotation_6d
 from trainer import constants as C
-from trainer.assets.scene import Scene, home_hand_pose, slot_qpos_addresses, ur5e_home_joints
+from trainer.assets.scene import (
+    Scene,
+    home_hand_pose,
+    slot_qpos_addresses,
+    slot_qvel_addresses,
+    ur5e_home_joints,
+)
 from trainer.config import EnvConfig
 from trainer.init_states import load_or_build_bank
 from trainer.kinematics import SiteKinematics, jacobian_transpose_step
@@ -46,6 +52,13 @@ from trainer.objects import ObjectSet, load_objects, resolve_names
 from trainer.representations import object_representation
 from trainer.sim import make_backend
 from trainer.tasks.spec import observation_spec
+
+ESCAPE_DISTANCE = 2.0
+"""An object higher than this above the table top, or farther than this from its centre (m), is
+out of the UR5e's reach (0.85 m from its base): only a blown-up contact puts it there."""
+LAUNCH_SPEED = 10.0
+"""An object moving faster than this (m/s) was launched by a blown-up contact: the arm moves the
+hand at ~1 m/s and an object falling off the table reaches ~1 m/s before it is reset."""
 
 
 def _compiled_or_eager(function):  # noqa: ANN001, ANN202
@@ -106,6 +119,8 @@ class GraspTask(EnvBase):
         self.banks = torch.as_tensor(banks, dtype=torch.float32, device=self.device)  # (L,B,K,7)
         address = torch.as_tensor(slot_qpos_addresses(self.model, K), device=self.device)
         self.slot_qpos = address[:, None] + torch.arange(7, device=self.device)  # (K, 7)
+        address = torch.as_tensor(slot_qvel_addresses(self.model, K), device=self.device)
+        self.slot_linvel = address[:, None] + torch.arange(3, device=self.device)  # (K, 3)
 
         self._index_model(self.model)
         self.kinematics = SiteKinematics(self.model, ["palm", *C.FINGERTIPS], self.device)
@@ -386,9 +401,14 @@ class GraspTask(EnvBase):
         )
         s["palm_pos"] = palm_pos
         lift = terms.pop("lift_height")
-        success, terminated, truncated = flags
-        unstable = self.backend.unstable()
+        success, terminated, truncated, escaped = flags
+        launched = (self.backend.qvel[:, self.slot_linvel].norm(dim=-1) > LAUNCH_SPEED).any(1)
+        unstable = self.backend.unstable() | escaped | launched
+        # A blown-up step neither succeeds nor terminates (it truncates) and earns nothing.
+        success = success & ~unstable
+        terminated = terminated & ~unstable
         truncated = truncated | unstable
+        terms["reward"] = terms["reward"].masked_fill(unstable, 0.0)
         if reset:
             terms = {k: torch.zeros_like(v) for k, v in terms.items()}
             success = terminated = truncated = unstable = torch.zeros_like(success)
@@ -445,8 +465,14 @@ class GraspTask(EnvBase):
         reward = terms["lift"] + terms["success"] + terms["contact"]
         terms["reward"] = torch.nan_to_num(reward, nan=0.0, posinf=0.0, neginf=0.0)
         terms["lift_height"] = lift
-        flags = self._get_termination(lift, h_bar, obj_pos, step_count)
-        return obs, terms, flags, palm_pos
+        success, terminated, truncated = self._get_termination(lift, h_bar, obj_pos, step_count)
+        # An object thrown out of the robot's reach (or faster than LAUNCH_SPEED, in _observe)
+        # was launched by a blown-up contact, even when every speed stayed finite and below the
+        # backend's MAX_SPEED (rises of hundreds of metres were seen with impratio 10): the step
+        # counts as unstable, never as a lift.
+        pos = slots[..., :3]
+        escaped = ((pos[..., 2] > ESCAPE_DISTANCE) | (pos[..., :2].norm(dim=-1) > ESCAPE_DISTANCE))
+        return obs, terms, (success, terminated, truncated, escaped.any(1)), palm_pos
 
     def _get_obs(
         self,
