@@ -355,3 +355,28 @@ def test_curriculum_runs_get_their_plot(run_dirs: list[Path], tmp_path: Path) ->
     written = report.write_report(run_dirs, tmp_path / "out")
     assert "curriculum.png" in {p.name for p in written}
     assert "![lift curriculum](curriculum.png)" in (tmp_path / "out" / "report.md").read_text()
+
+
+def test_runs_that_differ_in_more_than_the_seed_are_not_averaged(tmp_path: Path) -> None:
+    """Two bbox runs, one with the no-slip solver: two groups named by the difference, never
+    one group of two "seeds"; seeds that differ only in the seed and the threads stay one group.
+    A field only some runs record (added to the config later) does not split them."""
+    root = tmp_path / "runs"
+    rates = [0.1, 0.5]
+    dirs = [_write_run(root, "bbox", s, 30, rates, None, name=f"bbox_s{s}") for s in (0, 1)]
+    dirs.append(_write_run(root, "bbox", 0, 30, rates, None,
+                           {"physics": {"noslip_iterations": 5}}, "bbox-noslip"))
+    for path, physics in zip(dirs, ({"noslip_iterations": 0}, {"noslip_iterations": 0}, None),
+                             strict=True):
+        config = json.loads((path / "config.json").read_text())
+        config["run"]["torch_threads"] = 1 + config["run"]["seed"]
+        if physics:
+            config["env"]["physics"] = {**physics, "sleep": False}
+        (path / "config.json").write_text(json.dumps(config))
+    runs = [report.load_run(d) for d in dirs]
+    groups = report.group_runs(runs)
+    assert {k[1]: len(v) for k, v in groups.items()} == {
+        "bbox [noslip_iterations=0]": 2, "bbox [noslip_iterations=5]": 1,
+    }
+    assert "| lift | bbox [noslip_iterations=5] | sdf | ur5e | 1 |" in report.summary_table(runs)
+    assert len(report.group_runs(runs[:2])) == 1

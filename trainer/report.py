@@ -13,9 +13,13 @@ Runs are grouped by (task, representation, reward kind, robot kind), where the t
 ``binN`` (N objects per bin) and the representation gains ``+ctx`` when the policy also sees the
 other objects (``context``): a bin run and a lift run are different groups even with the same
 representation. Run directories written before the tasks existed (no ``env.task``) are lift
-runs. The runs of a group are taken to differ by seed, and every table cell is a mean ± std
-(ddof = 0) over them. Units: env steps are counted over all parallel environments, wall time is
-seconds in the data and minutes in tables and plots, success rates are fractions in [0, 1].
+runs. Runs of one such group whose configs differ in anything else (physics, PPO settings, the
+budget; not in the seed or in ``NOT_THE_EXPERIMENT``, and only in fields every one of them
+records) are split further, and the representation names the difference, e.g.
+``bbox [noslip_iterations=5]``. The runs of a group are then taken to differ by seed, and every
+table cell is a mean ± std (ddof = 0) over them. Units: env steps are counted over all
+parallel environments, wall time is seconds in the data and minutes in tables and plots,
+success rates are fractions in [0, 1].
 Group labels: ``sq`` (lift), ``bin5-bbox``, ``bin5-bbox+ctx``.
 """
 
@@ -26,7 +30,7 @@ import json
 import math
 import os
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -39,6 +43,11 @@ GroupKey = tuple[str, str, str, str]
 """(task, representation, reward kind, robot kind): task ``lift`` or ``binN``, representation
 with ``+ctx`` when the policy sees the context (see ``task_name`` and ``view_name``)."""
 
+NOT_THE_EXPERIMENT = frozenset({
+    "run.seed", "run.torch_threads", "run.checkpoint_every", "env.nthread", "env.compile",
+    "env.data_dir", "env.device",
+})
+"""Config fields that seeds of one experiment may differ in: the seed, and how and where it ran."""
 THRESHOLDS = (0.9, 0.95)
 CURVE_POINTS = 200
 _DASH = "—"
@@ -95,6 +104,8 @@ class Run:
     """``lift`` or ``bin``; ``bin_objects`` (objects per bin) and ``context`` matter for bin."""
     bin_objects: int | None = None
     context: str = "none"
+    settings: dict[str, str] = field(default_factory=dict)
+    """Every config field but ``NOT_THE_EXPERIMENT``'s: dotted name -> JSON value."""
 
     @property
     def has_curriculum(self) -> bool:
@@ -146,6 +157,7 @@ def load_run(path: str | Path) -> Run:
         task=config["task"],
         bin_objects=config["bin_objects"],
         context=config["context"],
+        settings=config["settings"],
     )
 
 
@@ -201,7 +213,19 @@ def _read_config(path: Path) -> dict[str, Any]:
     return {
         "representation": names[0], "reward": names[1], "robot": names[2], "seed": seed,
         "task": task, "bin_objects": bin_objects, "context": context,
+        "settings": {k: v for k, v in _flatten(config).items() if k not in NOT_THE_EXPERIMENT},
     }
+
+
+def _flatten(node: dict, prefix: str = "") -> dict[str, str]:
+    """A nested config as dotted name -> JSON text of the value."""
+    out: dict[str, str] = {}
+    for key, value in node.items():
+        if isinstance(value, dict):
+            out.update(_flatten(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = json.dumps(value)
+    return out
 
 
 def _read_metrics(path: Path) -> tuple[np.ndarray, ...]:
@@ -350,10 +374,22 @@ def final_success(run: Run, last_fraction: float = 0.1) -> float:
 
 
 def group_runs(runs: Iterable[Run]) -> dict[GroupKey, list[Run]]:
-    """Runs by group key, groups in order of first appearance, runs within a group by seed."""
-    groups: dict[GroupKey, list[Run]] = {}
+    """Runs by group key, groups in order of first appearance, runs within a group by seed.
+    Runs of one ``Run.group`` whose settings differ are split: their representation gains
+    `` [name=value, ...]`` for every setting that differs (see the module docstring)."""
+    by_group: dict[GroupKey, list[Run]] = {}
     for run in runs:
-        groups.setdefault(run.group, []).append(run)
+        by_group.setdefault(run.group, []).append(run)
+    groups: dict[GroupKey, list[Run]] = {}
+    for key, members in by_group.items():
+        shared = set.intersection(*(set(r.settings) for r in members))
+        differ = sorted(k for k in shared if len({r.settings[k] for r in members}) > 1)
+        for run in members:
+            variant = ", ".join(
+                f"{k.rsplit('.', 1)[-1]}={json.loads(run.settings[k])}" for k in differ
+            )
+            split = (key[0], f"{key[1]} [{variant}]", *key[2:]) if variant else key
+            groups.setdefault(split, []).append(run)
     for members in groups.values():
         members.sort(key=lambda r: (r.seed is None, r.seed if r.seed is not None else 0))
     return groups
@@ -553,13 +589,15 @@ def plot_curriculum(runs: Sequence[Run], out_png: str | Path) -> Path:
     it vs env steps (M), one colour per run. Writes ``out_png`` atomically and returns it."""
     plt = _pyplot()
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
-    for run in runs:
-        if not run.has_curriculum:
-            continue
-        assert run.h_bar is not None and run.target_success_rate is not None
-        label = f"{'/'.join(run.group)} s{run.seed}"
-        line = top.plot(run.env_steps / 1e6, run.h_bar, label=label)[0]
-        bottom.plot(run.env_steps / 1e6, run.target_success_rate, color=line.get_color())
+    labels = group_labels(runs)
+    for key, members in group_runs(runs).items():
+        for run in members:
+            if not run.has_curriculum:
+                continue
+            assert run.h_bar is not None and run.target_success_rate is not None
+            label = f"{labels[key]} s{run.seed}"
+            line = top.plot(run.env_steps / 1e6, run.h_bar, label=label)[0]
+            bottom.plot(run.env_steps / 1e6, run.target_success_rate, color=line.get_color())
     top.set_ylabel("lift target h_bar (m)")
     top.grid(alpha=0.3)
     top.legend(loc="lower right")
@@ -692,9 +730,10 @@ def write_report(
             "",
         ]
     parts += ["## Runs", "", "Paths relative to this report's directory.", ""]
+    group_of = {id(r): key for key, members in group_runs(runs).items() for r in members}
     for r in runs:
         rel = _relative_to(r.path, out_dir)
-        parts.append(f"- [`{rel}`]({rel}): {'/'.join(r.group)}, seed {r.seed}")
+        parts.append(f"- [`{rel}`]({rel}): {'/'.join(group_of[id(r)])}, seed {r.seed}")
 
     report = out_dir / "report.md"
     with atomic_path(report) as tmp:

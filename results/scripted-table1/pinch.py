@@ -326,6 +326,8 @@ def main() -> None:
     parser.add_argument("--data-dir", type=Path, default=Path("data"))
     parser.add_argument("--grid", action="store_true", help="also scan pitch x clearance x squeeze")
     parser.add_argument("--out", type=Path, default=Path(__file__).with_name("pinch.csv"))
+    parser.add_argument("--backend", default="cpu", choices=("cpu", "warp"),
+                        help="warp: MuJoCo Warp on its CPU device (kernels compile on first use)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     objects = tuple(args.objects.split(","))
@@ -340,7 +342,8 @@ def main() -> None:
         t = time.perf_counter()
         cfg = load_env_config(
             num_envs=args.trials * len(objects), objects=",".join(objects),
-            data_dir=args.data_dir, representation="com", nthread=1, **overrides,
+            data_dir=args.data_dir, representation="com", nthread=1, backend=args.backend,
+            **overrides,
         )
         env = make_env(cfg, seed=0)  # the same initial states for every variant
         rows = run_pinch(env, script, objects, name)
