@@ -58,20 +58,21 @@ def slot_name(k: int) -> str:
     return f"slot{k}"
 
 
+def _slot_joints(model: mujoco.MjModel, num_slots: int) -> np.ndarray:
+    """(K,) int: each slot's free joint."""
+    return np.array(
+        [model.body_jntadr[model.body(slot_name(k)).id] for k in range(num_slots)], dtype=np.int64
+    )
+
+
 def slot_qpos_addresses(model: mujoco.MjModel, num_slots: int) -> np.ndarray:
     """(K,) int: where each slot's free joint starts in qpos (3 position, then 4 quaternion)."""
-    return np.array(
-        [model.jnt_qposadr[model.body_jntadr[model.body(slot_name(k)).id]] for k in range(num_slots)],  # noqa: E501
-        dtype=np.int64,
-    )
+    return model.jnt_qposadr[_slot_joints(model, num_slots)].astype(np.int64)
 
 
 def slot_qvel_addresses(model: mujoco.MjModel, num_slots: int) -> np.ndarray:
     """(K,) int: where each slot's free joint starts in qvel (3 linear, world frame; 3 angular)."""
-    return np.array(
-        [model.jnt_dofadr[model.body_jntadr[model.body(slot_name(k)).id]] for k in range(num_slots)],  # noqa: E501
-        dtype=np.int64,
-    )
+    return model.jnt_dofadr[_slot_joints(model, num_slots)].astype(np.int64)
 
 
 def _matrix_to_quat(rot: np.ndarray) -> np.ndarray:

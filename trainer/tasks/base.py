@@ -401,9 +401,8 @@ class GraspTask(EnvBase):
         )
         s["palm_pos"] = palm_pos
         lift = terms.pop("lift_height")
-        success, terminated, truncated, escaped = flags
-        launched = (self.backend.qvel[:, self.slot_linvel].norm(dim=-1) > LAUNCH_SPEED).any(1)
-        unstable = self.backend.unstable() | escaped | launched
+        success, terminated, truncated = flags
+        unstable = self.backend.unstable() | self._thrown(qpos)
         # A blown-up step neither succeeds nor terminates (it truncates) and earns nothing.
         success = success & ~unstable
         terminated = terminated & ~unstable
@@ -465,14 +464,18 @@ class GraspTask(EnvBase):
         reward = terms["lift"] + terms["success"] + terms["contact"]
         terms["reward"] = torch.nan_to_num(reward, nan=0.0, posinf=0.0, neginf=0.0)
         terms["lift_height"] = lift
-        success, terminated, truncated = self._get_termination(lift, h_bar, obj_pos, step_count)
-        # An object thrown out of the robot's reach (or faster than LAUNCH_SPEED, in _observe)
-        # was launched by a blown-up contact, even when every speed stayed finite and below the
-        # backend's MAX_SPEED (rises of hundreds of metres were seen with impratio 10): the step
-        # counts as unstable, never as a lift.
-        pos = slots[..., :3]
-        escaped = ((pos[..., 2] > ESCAPE_DISTANCE) | (pos[..., :2].norm(dim=-1) > ESCAPE_DISTANCE))
-        return obs, terms, (success, terminated, truncated, escaped.any(1)), palm_pos
+        flags = self._get_termination(lift, h_bar, obj_pos, step_count)
+        return obs, terms, flags, palm_pos
+
+    def _thrown(self, qpos: torch.Tensor) -> torch.Tensor:
+        """(E,) bool: some object was launched by a blown-up contact: it is out of the robot's
+        reach (``ESCAPE_DISTANCE``) or faster than ``LAUNCH_SPEED``. The backend's ``unstable``
+        misses this: rises of hundreds of metres were seen with impratio 10, every speed finite
+        and below its MAX_SPEED, and the object counted as lifted on its way up."""
+        pos = qpos[:, self.slot_qpos[:, :3]]  # (E, K, 3)
+        speed = self.backend.qvel[:, self.slot_linvel].norm(dim=-1)  # (E, K)
+        far = (pos[..., 2] > ESCAPE_DISTANCE) | (pos[..., :2].norm(dim=-1) > ESCAPE_DISTANCE)
+        return (far | (speed > LAUNCH_SPEED)).any(1)
 
     def _get_obs(
         self,
