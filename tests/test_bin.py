@@ -4,6 +4,7 @@ mask, and one-line errors for impossible bins."""
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
 
@@ -112,10 +113,22 @@ def test_success_only_for_the_target(env: GraspTask) -> None:
     td = env.step(TensorDict({"action": torch.zeros(E, 11)}, batch_size=[E]))["next"]
     assert not td["success"].any()
     env.reset()
-    _teleport_up(env, env.state["target_slot"], 0.35)  # the target: a success in every env
+    _teleport_up(env, env.state["target_slot"], 0.35)  # the target, but nothing holds it
     td = env.step(TensorDict({"action": torch.zeros(E, 11)}, batch_size=[E]))["next"]
+    assert (td["lift_height"] > env.cfg.reward.h_bar).all() and not td["success"].any()
+    # Without the hold condition (hold_tips = 0, eager task code reads the config each step)
+    # the same rise of the target is a success in every env.
+    held_cfg = env.cfg
+    env.cfg = dataclasses.replace(
+        held_cfg, reward=dataclasses.replace(held_cfg.reward, hold_tips=0)
+    )
+    try:
+        env.reset()
+        _teleport_up(env, env.state["target_slot"], 0.35)
+        td = env.step(TensorDict({"action": torch.zeros(E, 11)}, batch_size=[E]))["next"]
+    finally:
+        env.cfg = held_cfg
     assert td["success"].all() and td["terminated"].all()
-    assert (td["lift_height"] > env.cfg.reward.h_bar).all()
 
 
 def test_context_lists_the_other_objects_and_masks_fallen_ones(env: GraspTask) -> None:

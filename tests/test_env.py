@@ -209,12 +209,63 @@ def test_object_thrown_out_of_reach_is_unstable_not_a_lift(env: GraspTask) -> No
     slot = env.state["target_slot"]
     z = env.slot_qpos[slot, 2]  # (E,) the target's height in qpos
     qpos[0, z[0]] = 5.0  # far above any reach: launched
-    qpos[1, z[1]] += 0.5  # lifted by 0.5 m, within reach: a real lift
+    qpos[1, z[1]] += 0.5  # lifted by 0.5 m, within reach (not held: no success, see below)
     qvel = torch.zeros_like(env.backend.qvel)
     qvel[2, env.slot_linvel[slot[2], 2]] = 20.0  # shot upward at 20 m/s, still on the table
     env.backend.set_state(torch.arange(7), qpos, qvel, env.state["ctrl"])
     td = env._observe(reset=False)
     assert td["unstable"][:, 0].tolist() == [True, False, True] + [False] * 4
-    assert td["success"][:, 0].tolist()[:2] == [False, True]
+    assert not td["success"][:, 0].any()
     assert td["truncated"][0, 0] and not td["terminated"][0, 0]
     assert td["reward"][0, 0] == 0.0 and td["reward"][1, 0] > 0.0
+
+
+def test_hold_action_keeps_the_commands(env: GraspTask) -> None:
+    """``hold_action`` (how ``trainer play`` holds a finished episode's grasp): the step it
+    drives leaves the commanded palm pose and the hand's targets where they were, wherever the
+    random actions before it had put them."""
+    env.reset()
+    generator = torch.Generator().manual_seed(0)
+    for _ in range(4):
+        action = 0.3 * (2.0 * torch.rand(7, 11, generator=generator) - 1.0)
+        env.step(TensorDict({"action": action}, batch_size=[7]))
+    before = {k: env.state[k].clone() for k in ("target_pos", "target_rot", "ctrl")}
+    hold = env.hold_action()
+    assert hold.shape == (7, 11) and bool((hold.abs() <= 1.0 + 1e-6).all())
+    assert not torch.allclose(hold[:, 6:], hold[:1, 6:].expand(7, -1))  # the envs differ
+    env.step(TensorDict({"action": hold}, batch_size=[7]))
+    torch.testing.assert_close(env.state["target_rot"], before["target_rot"])
+    torch.testing.assert_close(env.state["ctrl"][:, env.hand_act], before["ctrl"][:, env.hand_act])
+    # The palm command stays unless the hand lags it by more than the leash.
+    torch.testing.assert_close(env.state["target_pos"], before["target_pos"], atol=1e-5, rtol=0)
+
+
+def test_success_is_a_lift_while_held() -> None:
+    """Success needs the target lifted by h_bar *and* ``hold_tips`` fingertip pads within
+    ``hold_distance`` of its surface: a policy that bats the ball up through h_bar (the hand
+    ~20 cm away, seen in training) does not succeed. hold_tips = 0: any rise counts."""
+    from types import SimpleNamespace
+
+    from trainer.config import EnvConfig, RewardConfig
+
+    far, near = 0.2, 0.005
+    lift = torch.tensor([0.25, 0.25, 0.25, 0.10, 0.25])
+    tip_distance = torch.tensor([
+        [far] * 5,                    # tossed: nothing near
+        [near, 0.019, far, far, far],  # thumb and index pads on it: held
+        [near, far, far, far, far],    # one pad: balanced, not held
+        [near] * 5,                    # held, not yet lifted enough
+        [-0.003, near, far, far, far],  # a pad pressed into the surface counts
+    ])
+    step_count = torch.zeros(5, dtype=torch.long)
+    obj_pos = torch.zeros(5, 3)
+    obj_pos[:, 2] = 0.5
+    for hold_tips, expected in ((2, [False, True, False, False, True]),
+                                (1, [False, True, True, False, True]),
+                                (0, [True, True, True, False, True])):
+        task = SimpleNamespace(cfg=EnvConfig(reward=RewardConfig(hold_tips=hold_tips)))
+        success, terminated, _ = GraspTask._get_termination(
+            task, lift, torch.tensor(0.2), tip_distance, obj_pos, step_count
+        )
+        assert success.tolist() == expected, hold_tips
+        assert torch.equal(terminated, success)  # on the table: only a success ends it

@@ -153,8 +153,11 @@ def test_train_writes_run_directory(builtin_data: Config, tmp_path: Path, repres
 
 
 def with_curriculum(cfg, start: float, increment: float):  # noqa: ANN001, ANN201
+    # hold_tips = 0: a target below the start (start < 0) is then reached at every step with
+    # nothing held, which these tests use to drive the curriculum.
     reward = dataclasses.replace(
-        cfg.env.reward, h_bar_start=start, h_bar_increment=increment, h_bar_promote=0.5
+        cfg.env.reward, h_bar_start=start, h_bar_increment=increment, h_bar_promote=0.5,
+        hold_tips=0,
     )
     return dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, reward=reward))
 
@@ -283,10 +286,14 @@ def test_cli_run_eval_play_report(builtin_data: Config, tmp_path: Path) -> None:
     result = runner.invoke(cli, ["eval", str(run_dir), "--episodes-per-object", "2"])
     assert result.exit_code == 0, result.output
     assert "overall" in result.output
+    held = "the target lifted by 0.2 m while held (2 or more fingertip pads"
+    assert f"success: {held}" in result.output
+    assert f"Success: {held}" in (run_dir / "eval" / "table.md").read_text()
     video = tmp_path / "play.gif"
     result = runner.invoke(cli, ["play", str(run_dir), "--object", "builtin_sphere",
-                                 "--video", str(video)])
+                                 "--video", str(video), "--tries", "3"])
     assert result.exit_code == 0, result.output
+    assert "builtin_sphere: success " in result.output and "/3, " in result.output
     assert video.stat().st_size > 1000
     result = runner.invoke(cli, ["report", str(run_dir), "--out", str(tmp_path / "report")])
     assert result.exit_code == 0, result.output

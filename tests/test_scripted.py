@@ -143,7 +143,7 @@ def _assert_framed(
 def test_video_frames_hand_and_object_and_rolls_on_after_the_lift(builtin_data: Config) -> None:
     """The tracking camera keeps hand and object in frame through the whole grasp, and the video
     keeps at least 1 s of frames after the lift (the script's hold phase; then
-    ``capture_hold``, which ``trainer play`` uses after the policy's episodes end)."""
+    ``capture_hold``, as ``trainer play``'s tape does after the filmed episodes end)."""
     from trainer.video import EnvRecorder
 
     names = ("builtin_cylinder", "builtin_mug")
@@ -184,6 +184,50 @@ def test_video_frames_hand_and_object_and_rolls_on_after_the_lift(builtin_data: 
     _assert_framed(recorder)
     recorder.close()
     env.close()
+
+
+def test_filming_a_tape_renders_the_frames_of_a_live_recording(builtin_data: Config) -> None:
+    """``trainer play --tries`` records states of every env and films chosen ones afterwards:
+    those frames are exactly what a recorder capturing that env live renders (the tape copies
+    the states, it does not alias the backend's buffers, and the camera replays the same way),
+    the hold after the episodes included."""
+    from trainer.evaluation import successes_first
+    from trainer.video import EnvRecorder, StateTape
+
+    cfg = load_env_config(
+        num_envs=2, objects="builtin_cylinder,builtin_mug", data_dir=builtin_data.data_dir,
+        representation="com",
+    )
+    env = make_env(cfg, seed=0)
+    live = EnvRecorder(env, [1], width=96, height=72)
+    tape = StateTape(env)
+
+    def on_step(step: int) -> None:
+        live.capture()
+        tape.capture()
+
+    run_scripted_grasp(env, ScriptedGrasp(), on_step)
+    for step in range(3):  # the hold after the episodes (capture_hold), both recording
+        env.hold()
+        on_step(step)
+    later = EnvRecorder(env, [1], width=96, height=72)
+    later.film(tape)
+    assert len(later.frames) == len(tape.states) == len(live.frames)
+    assert all(np.array_equal(a, b) for a, b in zip(later.frames, live.frames, strict=True))
+    assert not np.array_equal(later.frames[0], later.frames[len(later.frames) // 2])
+    for recorder in (live, later):
+        recorder.close()
+    # end_at: cut to the filmed episodes' end plus a tail, rolling on where the tape is short.
+    tape.end_at(10, seconds=0.0)
+    assert len(tape.states) == 10
+    last = tape.states[-1][0]
+    tape.end_at(10, seconds=0.1)
+    assert len(tape.states) == 10 + round(0.1 * cfg.physics.control_hz)
+    assert not np.array_equal(tape.states[-1][0], last)  # the simulation rolled on
+    env.close()
+    success = torch.tensor([False, True, False, True])
+    assert successes_first([0, 1, 2, 3], success, 3) == [1, 3, 0]
+    assert successes_first([2, 0], success, 4) == [2, 0]
 
 
 def bin_env(data_dir: Path, num_envs: int, seed: int):  # noqa: ANN201

@@ -93,6 +93,8 @@ def invoke_all(argv: list[str], monkeypatch: pytest.MonkeyPatch, capsys) -> tupl
         (["eval", "."], "error: . is not a run directory (no config.json)"),
         (["play", "nowhere", "--object", "x"], "error: nowhere: no such run directory"),
         (["play", ".", "--object", "x", "--episodes", "0"], "error: --episodes 0: must be >= 1"),
+        (["play", ".", "--object", "x", "--episodes", "2", "--tries", "1"],
+         "error: --tries 1: must be >= --episodes (2)"),
         (["report", "nowhere"], "error: nowhere: no such run directory"),
         (["demo", "--trials", "0"], "error: --trials 0: must be >= 1"),
     ],
@@ -216,7 +218,8 @@ def test_lift_eval_names_the_task(
     lines = out.splitlines()
     assert lines[0] == "task lift, representation com: success per target object"
     assert [line.split()[0] for line in lines[1:]] == ["builtin_cylinder", "builtin_sphere",
-                                                       "overall"]
+                                                       "overall", "success:"]
+    assert lines[-1].startswith("success: the target lifted by 0.2 m while held")
     rows = _per_object(lift_run)
     assert [int(r["episodes"]) for r in rows.values()] == [3, 3]  # exactly, as before the tasks
     assert {r["task"] for r in rows.values()} == {"lift"}

@@ -296,6 +296,7 @@ def eval_cmd(
     for k, name in enumerate(result.names):
         click.echo(f"{name:<{width}}  {result.successes[k]}/{result.episodes[k]}")
     click.echo(f"{'overall':<{width}}  {result.overall:.3f}")
+    click.echo(f"success: the target {result.success_text}")
     if result.short:
         click.echo(
             f"note: after {result.rounds} round{'s' if result.rounds != 1 else ''} "
@@ -331,46 +332,63 @@ def report(run_dirs: tuple[Path, ...], out: Path, compare: str | None) -> None:
               help="Object to grasp (bin run: the target, in one of the run's bins).")
 @click.option("--video", type=click.Path(path_type=Path, dir_okay=False),
               default=Path("play.mp4"), show_default=True)
-@click.option("--episodes", default=1, show_default=True, help="Episodes side by side.")
+@click.option("--episodes", default=1, show_default=True,
+              help="Episodes in the video, side by side (at most 4 are filmed).")
+@click.option("--tries", default=None, type=int,
+              help="Episodes to run, filming --episodes of them with the successes first: "
+                   "find a policy's rare grasps [--episodes].")
 @click.option("--seed", default=0, show_default=True)
 @click.option("--device", default=None, help="Torch device [the run's].")
 def play(
-    run_dir: Path, object_name: str, video: Path, episodes: int, seed: int, device: str | None
+    run_dir: Path, object_name: str, video: Path, episodes: int, tries: int | None, seed: int,
+    device: str | None,
 ) -> None:
     """Render episodes of the trained (deterministic) policy into a video.
 
     Lift run: OBJECT alone on the table. Bin run: episodes in the run's bins whose target is
-    OBJECT (it must be in one of them).
+    OBJECT (it must be in one of them). An episode that ends before the others holds its
+    last commands (a lift stays lifted); the video goes on 1 s past the last filmed episode's
+    end. With --tries N, N episodes run side by side (nothing rendered) and the video shows
+    the successful ones first.
     """
     _at_least("--episodes", episodes, 1)
+    tries = episodes if tries is None else tries
+    if tries < episodes:
+        raise TrainerError(f"--tries {tries}: must be >= --episodes ({episodes})")
     _at_least("--seed", seed, 0)
     _device(device)
-    from trainer.evaluation import play_bins, run_episodes
+    from trainer.evaluation import play_bins, run_episodes, successes_first
     from trainer.objects import resolve_names
     from trainer.ppo import load_agent
     from trainer.tasks import make_env
-    from trainer.video import EnvRecorder
+    from trainer.video import EnvRecorder, StateTape
 
     cfg, agent = load_agent(_run_dir(run_dir), device)
     names = resolve_names(object_name, cfg.env.data_dir)
     if len(names) != 1:
         raise TrainerError(f"--object {object_name}: names several objects: name one")
     if cfg.env.task == "bin":
-        env, ids, slots = play_bins(cfg, names[0], episodes)
+        env, ids, slots = play_bins(cfg, names[0], tries)
         env.set_seed(seed)
     else:
-        env = make_env(dataclasses.replace(cfg.env, objects=names[0], num_envs=episodes), seed)
-        ids, slots = list(range(episodes)), None
-    recorder = EnvRecorder(env, ids[:4], width=480, height=360)
+        env = make_env(dataclasses.replace(cfg.env, objects=names[0], num_envs=tries), seed)
+        ids, slots = list(range(tries)), None
+    tape = StateTape(env)
     success, length, _ = run_episodes(
-        env, agent.actor, on_step=recorder.capture, target_slots=slots, watch=ids
+        env, agent.actor, on_step=tape.capture, target_slots=slots, watch=ids,
+        hold_finished=True,
     )
-    recorder.capture_hold()  # 1 s more, so the video does not end on the lift
+    filmed = successes_first(ids, success, min(episodes, 4))  # at most 4 tiles
+    tape.end_at(int(length[filmed].max()))  # and 1 s more, so it does not end on the lift
+    recorder = EnvRecorder(env, filmed, width=480, height=360)
+    recorder.film(tape)
     recorder.save(video, fps=cfg.env.physics.control_hz)
     recorder.close()
     env.close()
+    shown = int(success[filmed].sum())
     click.echo(f"{names[0]}: success {int(success[ids].sum())}/{len(ids)}, "
-               f"{int(length[ids].max())} steps; video: {video}")
+               f"{int(length[ids].max())} steps; video: {video} ({len(filmed)} episodes, "
+               f"{shown} of them successes)")
 
 
 def main() -> None:

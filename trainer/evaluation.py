@@ -50,6 +50,8 @@ class EvalResult:
     rounds: int = 1
     short: list[str] = dataclasses.field(default_factory=list)
     absent: list[str] = dataclasses.field(default_factory=list)
+    success_text: str = ""
+    """What counted as a success (``RewardConfig.success_text``)."""
 
     @property
     def overall(self) -> float:
@@ -89,13 +91,16 @@ def run_episodes(
     on_step: Callable[[], None] | None = None,
     target_slots: torch.Tensor | None = None,
     watch: Sequence[int] | None = None,
+    hold_finished: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """One episode in every env from a fresh reset; returns (success (E,) bool, length (E,),
     target object id (E,), taken right after the reset), on the CPU.
 
     Envs that finish early keep stepping (nothing is reset) but their outcome is frozen; the
     rollout ends when every env (or every env of ``watch``) has finished. ``target_slots`` (E,):
-    the target slot of each env's episode (``force_targets``; -1: the env's own draw)."""
+    the target slot of each env's episode (``force_targets``; -1: the env's own draw).
+    ``hold_finished``: a finished env holds its last commands (``GraspTask.hold_action``)
+    instead of following the policy past its episode's end (videos: a lift stays lifted)."""
     E = env.num_envs
     success = torch.zeros(E, dtype=torch.bool)
     length = torch.zeros(E, dtype=torch.long)
@@ -108,7 +113,11 @@ def run_episodes(
     targets = env.target_objects().cpu()
     with torch.no_grad(), set_exploration_type(mode):
         for _ in range(env.cfg.max_steps):
-            td = env.step(actor(td))
+            td = actor(td)
+            if hold_finished and finished.any():
+                held = finished.to(td.device)
+                td["action"][held] = env.hold_action()[held]
+            td = env.step(td)
             if on_step is not None:
                 on_step()
             done = td["next", "done"][:, 0].cpu() & ~finished
@@ -150,6 +159,7 @@ def evaluate(
         )
     else:
         result = _evaluate_lift(cfg.env, agent.actor, names, episodes_per_object, seed, max_envs)
+    result = dataclasses.replace(result, success_text=cfg.env.reward.success_text())
     write_eval(RunDir(Path(run_dir)), result)
     return result
 
@@ -185,6 +195,12 @@ def run_bins(cfg: TrainConfig, num_envs: int, objects: Sequence[str] | None = No
     if objects is not None:
         env_cfg = dataclasses.replace(env_cfg, objects=",".join(objects))
     return make_env(env_cfg, seed=cfg.run.seed)
+
+
+def successes_first(ids: Sequence[int], success: torch.Tensor, count: int) -> list[int]:
+    """The first ``count`` of the envs ``ids``, the successful ones (``success`` (E,) bool)
+    first, each group in the order of ``ids``: what ``trainer play --tries`` films."""
+    return sorted(ids, key=lambda i: not bool(success[i]))[:count]
 
 
 def play_bins(
@@ -282,6 +298,7 @@ def write_eval(run: RunDir, result: EvalResult) -> None:
     lines = [
         f"Success per target object: {result.describe()}.",
         "",
+        *([f"Success: the target {result.success_text}.", ""] if result.success_text else []),
         f"| object | episodes | {result.label} |",
         "|---|---:|---:|",
     ]

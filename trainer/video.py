@@ -9,6 +9,8 @@ By default each tile is filmed by a ``TrackingCamera`` that keeps the hand and t
 object in frame (in a scene with a bin: the hand, the whole bin and every object still on the
 table, so that the clutter is visible); ``EnvRecorder.capture_hold`` keeps the simulation rolling
 after the episode so that the video does not stop on the very frame the object is lifted.
+``StateTape`` records the states of every env without rendering, so that ``trainer play --tries``
+can run many episodes and film only the chosen ones afterwards (``EnvRecorder.film``).
 
 Objects are found by their slot body (``trainer.assets.scene.slot_name``), the bin by its geoms'
 names (``bin_floor``, ``bin_wall_x+``, ...), the hand as the subtree of the ``palm`` body: never
@@ -22,6 +24,7 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+import torch
 
 from geomprep.store import atomic_path
 from trainer.assets.scene import slot_name
@@ -85,16 +88,24 @@ class EnvRecorder:
     def capture(self) -> np.ndarray:
         """Render the current state of every chosen env; returns and keeps the (H, W·n, 3)
         uint8 frame."""
-        qpos = self.env.backend.qpos.detach().cpu().double().numpy()
-        mocap_pos, mocap_quat = self.env.mocap_targets()
-        self._targets = self._read_targets()
+        return self._render(StateTape.snapshot(self.env))
+
+    def film(self, tape: StateTape) -> None:
+        """Render every state ``tape`` recorded, one frame each, for the chosen envs (which
+        index the tape's envs: the same env as the tape's)."""
+        for state in tape.states:
+            self._render(state)
+
+    def _render(self, state: EnvState) -> np.ndarray:
+        qpos, mocap_pos, mocap_quat, target_slot = state
+        self._targets = [int(target_slot[i]) for i in self.env_ids]
         tiles = []
         for k, i in enumerate(self.env_ids):
             model, data, renderer = self.models[k], self.datas[k], self._renderers[k]
             data.qpos[:] = qpos[i]
             if model.nmocap:
-                data.mocap_pos[:] = mocap_pos[i].detach().cpu().numpy()
-                data.mocap_quat[:] = mocap_quat[i].detach().cpu().numpy()
+                data.mocap_pos[:] = mocap_pos[i]
+                data.mocap_quat[:] = mocap_quat[i]
             mujoco.mj_forward(model, data)
             renderer.update_scene(data, self.camera_for(k))
             tiles.append(renderer.render())
@@ -156,6 +167,51 @@ class EnvRecorder:
     def close(self) -> None:
         for renderer in self._renderers:
             renderer.close()
+
+
+EnvState = tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray]
+"""What a frame is rendered from, for every env of a task: qpos (E, nq) float64, the mocap
+target's position (E, 1, 3) and quaternion (E, 1, 4) (Nones without a mocap hand), and the
+target slot (E,) int."""
+
+
+class StateTape:
+    """Records the state of every env of a task at each ``capture``, to film chosen envs later
+    (``EnvRecorder.film``): ``trainer play --tries`` runs many episodes, then films the ones
+    that succeeded. A few kB per env and step (qpos and the targets), nothing rendered."""
+
+    def __init__(self, env: GraspTask) -> None:
+        self.env = env
+        self.states: list[EnvState] = []
+
+    @staticmethod
+    def snapshot(env: GraspTask) -> EnvState:
+        """The state of every env of ``env`` now: copies on the CPU (the backend's arrays are
+        views that the next step overwrites)."""
+
+        def copy(x: torch.Tensor) -> np.ndarray:
+            return x.detach().to("cpu", torch.float64, copy=True).numpy()
+
+        mocap_pos, mocap_quat = env.mocap_targets()
+        return (
+            copy(env.backend.qpos),
+            None if mocap_pos is None else copy(mocap_pos),
+            None if mocap_quat is None else copy(mocap_quat),
+            env.state["target_slot"].detach().cpu().numpy().copy(),
+        )
+
+    def capture(self) -> None:
+        self.states.append(self.snapshot(self.env))
+
+    def end_at(self, steps: int, seconds: float = TAIL_SECONDS) -> None:
+        """Make the tape ``steps`` control periods plus ``seconds`` long: the states past that
+        are dropped (the filmed episodes ended ``steps`` in, the others ran on), and a tape too
+        short rolls the simulation on holding the last commands (``GraspTask.hold``)."""
+        want = steps + round(seconds * self.env.cfg.physics.control_hz)
+        del self.states[want:]
+        while len(self.states) < want:
+            self.env.hold()
+            self.capture()
 
 
 def mjv_camera(view: CameraView) -> mujoco.MjvCamera:

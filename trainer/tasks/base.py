@@ -92,7 +92,11 @@ class GraspTask(EnvBase):
         self.cfg = cfg
         E = cfg.num_envs
         names = resolve_names(cfg.objects, cfg.data_dir)
-        need_sdf = cfg.representation == "sdf" or cfg.reward.kind == "sdf"
+        # The SDF: for the representation, the reward's fingertip distances, or to tell a held
+        # lift from a toss (reward.hold_tips).
+        need_sdf = (
+            cfg.representation == "sdf" or cfg.reward.kind == "sdf" or cfg.reward.hold_tips > 0
+        )
         sdf_dtype = torch.float16 if cfg.sdf_dtype == "float16" else torch.float32
         self.objects: ObjectSet = load_objects(
             names, cfg.data_dir, need_sdf, self.device, sdf_dtype
@@ -348,6 +352,16 @@ class GraspTask(EnvBase):
         keep rolling after the episodes end)."""
         self.backend.step(self.state["ctrl"], *self.mocap_targets())
 
+    def hold_action(self) -> torch.Tensor:
+        """(E, action_dim) the action that keeps the current commands: no palm motion and the
+        hand's current actuator targets (``trainer play`` holds a finished episode's grasp with
+        it while the other episodes go on, instead of letting the policy act past its end)."""
+        hand = self.state["ctrl"][:, self.hand_act]
+        span = self.hand_closed - self.hand_open
+        action = torch.zeros(self.num_envs, 6 + span.numel(), device=self.device)
+        action[:, 6:] = 2.0 * (hand - self.hand_open) / span - 1.0
+        return action
+
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get("action").clamp(-1.0, 1.0)
         s = self.state
@@ -460,11 +474,17 @@ class GraspTask(EnvBase):
             for k, v in obs.items()
         }
         lift = obj_pos[:, 2] - start_height
-        terms = self._get_reward(lift, h_bar, tips, target_id, obj_pos, obj_quat, obs)
+        if self.cfg.representation == "sdf":
+            tip_distance = obs["object"]  # the same query: the fingertips' signed distances
+        elif self.objects.sdf is not None:
+            tip_distance = self.objects.sdf.query(tips, obj_pos, obj_quat, target_id)
+        else:  # no SDF is needed: the com reward and no hold condition (hold_tips = 0)
+            tip_distance = torch.zeros_like(tips[..., 0])
+        flags = self._get_termination(lift, h_bar, tip_distance, obj_pos, step_count)
+        terms = self._get_reward(lift, h_bar, flags[0], tips, tip_distance, obj_pos)
         reward = terms["lift"] + terms["success"] + terms["contact"]
         terms["reward"] = torch.nan_to_num(reward, nan=0.0, posinf=0.0, neginf=0.0)
         terms["lift_height"] = lift
-        flags = self._get_termination(lift, h_bar, obj_pos, step_count)
         return obs, terms, flags, palm_pos
 
     def _thrown(self, qpos: torch.Tensor) -> torch.Tensor:
@@ -508,41 +528,41 @@ class GraspTask(EnvBase):
         self,
         lift: torch.Tensor,
         h_bar: torch.Tensor,
+        success: torch.Tensor,
         tips: torch.Tensor,
-        target_id: torch.Tensor,
+        tip_distance: torch.Tensor,
         obj_pos: torch.Tensor,
-        obj_quat: torch.Tensor,
-        obs: dict[str, torch.Tensor],
     ) -> dict[str, torch.Tensor]:
-        """The paper's reward on the target, term by term (E,) each."""
+        """The paper's reward on the target, term by term (E,) each. lift (E,) m; success (E,)
+        bool (``_get_termination``); tips (E, 5, 3) fingertip pads; tip_distance (E, 5) their
+        signed distances to the target's surface (m)."""
         r = self.cfg.reward
         terms = {
             "lift": r.c1 / ((h_bar - lift).abs() + r.eps_h),
-            "success": r.c2 * (lift >= h_bar).float(),
+            "success": r.c2 * success.float(),
         }
         if r.kind == "none":
             terms["contact"] = torch.zeros_like(lift)
             return terms
         if r.kind == "sdf":
-            if self.cfg.representation == "sdf":
-                distance = obs["object"]
-            else:
-                distance = self.objects.sdf.query(tips, obj_pos, obj_quat, target_id)
             # A fingertip pressed into the surface is in contact: its distance is 0, not < 0.
-            total = distance.clamp_min(0.0).sum(-1)
+            total = tip_distance.clamp_min(0.0).sum(-1)
         else:
             total = (tips - obj_pos[:, None, :]).norm(dim=-1).sum(-1)
         terms["contact"] = r.c3 / (total + r.eps_sdf)
         return terms
 
     def _get_termination(
-        self, lift: torch.Tensor, h_bar: torch.Tensor, obj_pos: torch.Tensor,
-        step_count: torch.Tensor,
+        self, lift: torch.Tensor, h_bar: torch.Tensor, tip_distance: torch.Tensor,
+        obj_pos: torch.Tensor, step_count: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(success, terminated, truncated), each (E,) bool: success is the target lifted by
-        h_bar. A blown-up simulation also truncates; ``_observe`` adds that from the backend's
-        ``unstable``."""
-        success = lift >= h_bar
+        h_bar while held, ``reward.hold_tips`` fingertip pads within ``reward.hold_distance`` of
+        its surface (tip_distance (E, 5), m): a toss through h_bar is not a lift. A blown-up
+        simulation also truncates; ``_observe`` adds that from the backend's ``unstable``."""
+        r = self.cfg.reward
+        held = (tip_distance < r.hold_distance).sum(-1) >= r.hold_tips
+        success = (lift >= h_bar) & held
         fell = obj_pos[:, 2] < self.cfg.fall_height
         return success, success | fell, step_count >= self.cfg.max_steps
 
