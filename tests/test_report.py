@@ -380,3 +380,19 @@ def test_runs_that_differ_in_more_than_the_seed_are_not_averaged(tmp_path: Path)
     }
     assert "| lift | bbox [noslip_iterations=5] | sdf | ur5e | 1 |" in report.summary_table(runs)
     assert len(report.group_runs(runs[:2])) == 1
+
+
+def test_runs_from_before_the_held_criterion_are_not_averaged_with_later_ones(
+    tmp_path: Path,
+) -> None:
+    """A config without ``reward.hold_tips`` was written when any rise by h_bar was a success:
+    it is reported as hold_tips=0, apart from a run trained with today's default of 2."""
+    root = tmp_path / "runs"
+    dirs = [_write_run(root, "bbox", s, 30, [0.1, 0.5], None, name=f"bbox_s{s}") for s in (0, 1)]
+    config = json.loads((dirs[1] / "config.json").read_text())
+    config["env"]["reward"] = {**config["env"].get("reward", {}), "hold_tips": 2}
+    (dirs[1] / "config.json").write_text(json.dumps(config))
+    groups = report.group_runs([report.load_run(d) for d in dirs])
+    assert {k[1]: len(v) for k, v in groups.items()} == {
+        "bbox [hold_tips=0]": 1, "bbox [hold_tips=2]": 1,
+    }

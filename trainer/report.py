@@ -15,11 +15,11 @@ other objects (``context``): a bin run and a lift run are different groups even 
 representation. Run directories written before the tasks existed (no ``env.task``) are lift
 runs. Runs of one such group whose configs differ in anything else (physics, PPO settings, the
 budget; not in the seed or in ``NOT_THE_EXPERIMENT``, and only in fields every one of them
-records) are split further, and the representation names the difference, e.g.
-``bbox [noslip_iterations=5]``. The runs of a group are then taken to differ by seed, and every
-table cell is a mean ± std (ddof = 0) over them. Units: env steps are counted over all
-parallel environments, wall time is seconds in the data and minutes in tables and plots,
-success rates are fractions in [0, 1].
+records, or that ``ABSENT_MEANS`` fills in) are split further, and the representation names
+the difference, e.g. ``bbox [noslip_iterations=5]``. The runs of a group are then taken to
+differ by seed, and every table cell is a mean ± std (ddof = 0) over them. Units: env steps are
+counted over all parallel environments, wall time is seconds in the data and minutes in tables
+and plots, success rates are fractions in [0, 1].
 Group labels: ``sq`` (lift), ``bin5-bbox``, ``bin5-bbox+ctx``.
 """
 
@@ -48,6 +48,9 @@ NOT_THE_EXPERIMENT = frozenset({
     "env.data_dir", "env.device",
 })
 """Config fields that seeds of one experiment may differ in: the seed, and how and where it ran."""
+ABSENT_MEANS = {"env.reward.hold_tips": 0}
+"""Config fields added with a default that changed what a run does: a config written before
+the field existed ran with this value (success was any rise by h_bar), not today's default."""
 THRESHOLDS = (0.9, 0.95)
 CURVE_POINTS = 200
 _DASH = "—"
@@ -213,7 +216,10 @@ def _read_config(path: Path) -> dict[str, Any]:
     return {
         "representation": names[0], "reward": names[1], "robot": names[2], "seed": seed,
         "task": task, "bin_objects": bin_objects, "context": context,
-        "settings": {k: v for k, v in _flatten(config).items() if k not in NOT_THE_EXPERIMENT},
+        "settings": {
+            **{k: json.dumps(v) for k, v in ABSENT_MEANS.items()},
+            **{k: v for k, v in _flatten(config).items() if k not in NOT_THE_EXPERIMENT},
+        },
     }
 
 
