@@ -20,10 +20,11 @@ from torchrl.objectives import ClipPPOLoss
 from geomprep.config import Config
 from trainer.cli import cli
 from trainer.cli import main as trainer_main
-from trainer.config import load_train_config
+from trainer.config import RewardConfig, load_train_config
+from trainer.errors import TrainerError
 from trainer.evaluation import evaluate, run_episodes
 from trainer.models import Agent, RunningNorm
-from trainer.ppo import ObjectOutcomes, load_agent, minibatch_size, train
+from trainer.ppo import LiftCurriculum, ObjectOutcomes, load_agent, minibatch_size, train
 from trainer.tasks import make_env
 
 OBJECTS = "builtin_cylinder,builtin_sphere"
@@ -152,12 +153,12 @@ def test_train_writes_run_directory(builtin_data: Config, tmp_path: Path, repres
     assert sum(int(r["episodes"]) for r in rows) >= 4
 
 
-def with_curriculum(cfg, start: float, increment: float):  # noqa: ANN001, ANN201
+def with_curriculum(cfg, start: float, increment: float, per_object: bool = False):  # noqa: ANN001, ANN201, E501
     # hold_tips = 0: a target below the start (start < 0) is then reached at every step with
     # nothing held, which these tests use to drive the curriculum.
     reward = dataclasses.replace(
         cfg.env.reward, h_bar_start=start, h_bar_increment=increment, h_bar_promote=0.5,
-        hold_tips=0,
+        hold_tips=0, curriculum_per_object=per_object,
     )
     return dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, reward=reward))
 
@@ -179,14 +180,19 @@ def test_lift_curriculum_promotes_and_counts_task_success(
     # Evaluation uses the task's h_bar, not the curriculum's.
     _, agent = load_agent(run.path)
     env = make_env(dataclasses.replace(cfg.env, num_envs=4), seed=1)
-    assert float(env.h_bar) == pytest.approx(0.2)
+    assert env.h_bar.tolist() == pytest.approx([0.2] * len(env.objects.names))
     success, _, _ = run_episodes(env, agent.actor)
     assert not success.any()
 
 
-def test_resume_continues_bit_for_bit(builtin_data: Config, tmp_path: Path) -> None:
-    # With a lift curriculum, whose target is part of the state to restore.
-    cfg = with_curriculum(tiny_config(builtin_data.data_dir, iterations=4), -1.0, 0.3)
+@pytest.mark.parametrize("per_object", [False, True], ids=["one-target", "per-object"])
+def test_resume_continues_bit_for_bit(
+    builtin_data: Config, tmp_path: Path, per_object: bool
+) -> None:
+    # With a lift curriculum, whose target(s) are part of the state to restore.
+    cfg = with_curriculum(
+        tiny_config(builtin_data.data_dir, iterations=4), -1.0, 0.3, per_object=per_object
+    )
     straight = train(cfg, tmp_path / "straight", progress=False)
     # A run killed after iteration 3 (its last checkpoint is iteration 2), then resumed.
     killed = train(cfg, tmp_path / "killed", progress=False, stop_after=3)
@@ -205,6 +211,7 @@ def test_resume_continues_bit_for_bit(builtin_data: Config, tmp_path: Path) -> N
     assert [r["h_bar"] for r in rows] == [r["h_bar"] for r in straight_rows]
     assert float(rows[-1]["h_bar"]) > -1.0
     assert a["object_outcomes"] == b["object_outcomes"] and a["object_outcomes"]
+    assert a["h_bar"] == b["h_bar"] and a["target_outcomes"] == b["target_outcomes"]
     assert [r["object_success_rate"] for r in rows] == [
         r["object_success_rate"] for r in straight_rows
     ]
@@ -428,3 +435,51 @@ def test_eval_and_play_bad_input_is_one_line(
     shutil.copy(killed_run / "config.json", empty)
     code, _, err = main(["eval", str(empty)], monkeypatch, capsys)
     assert code == 1 and err.startswith(f"error: {empty}: no checkpoint yet"), err
+
+
+def test_per_object_curriculum_promotes_each_object_on_its_own_success() -> None:
+    """Object 0 succeeds, object 1 does not: only object 0's target rises, and its window
+    starts again; the state survives a checkpoint round trip."""
+    reward = RewardConfig(
+        h_bar_start=0.03, h_bar_increment=0.02, h_bar_promote=0.5, curriculum_per_object=True
+    )
+    curriculum = LiftCurriculum(reward, num_objects=3, window=64)
+    assert curriculum.window == 22  # 64 episodes over 3 objects
+    curriculum.record([0] * 21 + [1] * 22, [True] * 21 + [False] * 22)
+    assert not curriculum.promote()  # object 0's window is not full yet
+    curriculum.record([0], [True])
+    assert curriculum.promote()
+    assert curriculum.h_bars == pytest.approx([0.05, 0.03, 0.03])
+    assert curriculum.targets() == pytest.approx([0.05, 0.03, 0.03])
+    assert not curriculum.by_object.by_object[0]  # a new window at the new target
+    assert curriculum.rate() == 0.0  # object 1's 0 of 22 (object 0 has no episode yet)
+    restored = LiftCurriculum(reward, num_objects=3, window=64)
+    restored.load(curriculum.state())
+    assert restored.h_bars == curriculum.h_bars
+    assert restored.by_object.state() == curriculum.by_object.state()
+    # A checkpoint with one target for all objects does not resume a per-object run.
+    with pytest.raises(TrainerError, match="curriculum_per_object"):
+        restored.load({"h_bar": 0.05, "target_outcomes": []})
+    # Small windows are floored (16 episodes), and the global rule is unchanged.
+    assert LiftCurriculum(reward, num_objects=10, window=64).window == 16
+    single = LiftCurriculum(dataclasses.replace(reward, curriculum_per_object=False), 3, 4)
+    single.record([0, 1, 2, 2], [True, True, False, False])
+    assert single.promote() and single.targets() == pytest.approx(0.05)
+
+
+def test_lift_targets_per_object_decide_success(builtin_data: Config) -> None:
+    """Each env succeeds at its own object's target: a target below the start is reached at
+    once (nothing held needed: hold_tips = 0), one 1 m up is not."""
+    cfg = tiny_config(builtin_data.data_dir, iterations=1)
+    reward = dataclasses.replace(cfg.env.reward, hold_tips=0)
+    env = make_env(dataclasses.replace(cfg.env, reward=reward, num_envs=8), seed=0)
+    names = env.objects.names
+    targets = [-1.0 if k % 2 == 0 else 1.0 for k in range(len(names))]
+    env.set_lift_target(targets)
+    td = env.reset()
+    td = env.step(td.set("action", env.hold_action()))["next"]
+    object_id = td["object_id"][:, 0]
+    assert len(set(object_id.tolist())) > 1
+    assert td["success"][:, 0].tolist() == [k % 2 == 0 for k in object_id.tolist()]
+    with pytest.raises(TrainerError, match="lift targets"):
+        env.set_lift_target(targets[:-1])

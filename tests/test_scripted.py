@@ -161,7 +161,7 @@ def test_video_frames_hand_and_object_and_rolls_on_after_the_lift(builtin_data: 
         recorder.capture()
         lift = env.target_pose()[0][:, 2] - env.state["start_height"]
         for k in range(2):
-            if lift_frame[k] is None and bool(lift[k] >= env.h_bar):
+            if lift_frame[k] is None and bool(lift[k] >= cfg.reward.h_bar):
                 lift_frame[k] = len(recorder.frames)
         # Start, approach, grasp and lift: close up (3 % of the image, 4-13 % measured).
         if step in (0, 40, 90, 110):

@@ -137,6 +137,11 @@ class RewardConfig(_Checked):
     ``h_bar`` (the default, the paper): no curriculum. Evaluation always uses ``h_bar``."""
     h_bar_increment: float = bounded(0.02, gt=0)
     h_bar_promote: float = bounded(0.5, ge=0, le=1)
+    curriculum_per_object: bool = False
+    """The curriculum keeps one lift target per target object, each promoted on that object's
+    own running success (over ``run.success_window`` / the number of objects episodes, at
+    least 16), so the objects lifted early climb to ``h_bar`` instead of waiting at a target
+    the hard ones hold down. False: one target for all, promoted on the success of all."""
     hold_tips: int = bounded(2, ge=0, le=5)
     """Success (the bonus c2, the episode's end, every success rate) is the target lifted by
     h_bar *and held*: at least this many fingertip pads within ``hold_distance`` of its surface

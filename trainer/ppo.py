@@ -86,6 +86,98 @@ class ObjectOutcomes:
             self.by_object[int(object_id)] = deque(values, maxlen=self.window)
 
 
+class LiftCurriculum:
+    """The training lift target (m): starts at ``reward.h_bar_start`` and rises by
+    ``h_bar_increment`` whenever the running success at it reaches ``h_bar_promote`` over a
+    full window of ended episodes, until it is ``reward.h_bar``. One target for every object
+    over the last ``window`` episodes, or (``reward.curriculum_per_object``) one per object id
+    over that object's last ``window / num_objects`` episodes (at least 16)."""
+
+    MIN_OBJECT_WINDOW = 16
+
+    def __init__(self, reward, num_objects: int, window: int) -> None:  # noqa: ANN001
+        self.reward = reward
+        self.per_object = reward.curriculum_per_object
+        self.h_bars = [reward.h_bar_start] * num_objects
+        if self.per_object:
+            window = max(self.MIN_OBJECT_WINDOW, math.ceil(window / num_objects))
+        self.window = window
+        self.outcomes: deque[bool] = deque(maxlen=window)
+        self.by_object = ObjectOutcomes(window)
+
+    @property
+    def active(self) -> bool:
+        """Some object's target is still below the task's ``h_bar``."""
+        return min(self.h_bars) < self.reward.h_bar
+
+    def targets(self) -> float | list[float]:
+        """What ``GraspTask.set_lift_target`` takes."""
+        return list(self.h_bars) if self.per_object else self.h_bars[0]
+
+    def mean_h_bar(self) -> float:
+        return sum(self.h_bars) / len(self.h_bars)
+
+    def record(self, object_ids: list[int], successes: list[bool]) -> None:
+        """Ended episodes: their target object and success at the target they trained for."""
+        self.outcomes.extend(successes)
+        self.by_object.extend(object_ids, successes)
+
+    def rate(self) -> float:
+        """Running success at the current target(s): over all episodes, or the mean of the
+        objects' own rates (0 before any episode ended)."""
+        if self.per_object:
+            rate = self.by_object.rate()
+            return 0.0 if math.isnan(rate) else rate
+        return sum(self.outcomes) / len(self.outcomes) if self.outcomes else 0.0
+
+    def promote(self) -> bool:
+        """Raise every target whose window is full and successful enough; True if any rose
+        (its window then starts again)."""
+        if not self.per_object:
+            h_bar = _next_lift_target(
+                self.h_bars[0], self.rate(), len(self.outcomes) == self.window, self.reward
+            )
+            if h_bar == self.h_bars[0]:
+                return False
+            self.h_bars = [h_bar] * len(self.h_bars)
+            self.outcomes.clear()
+            return True
+        changed = False
+        for object_id, window in self.by_object.by_object.items():
+            h_bar = _next_lift_target(
+                self.h_bars[object_id], sum(window) / max(len(window), 1),
+                len(window) == self.window, self.reward,
+            )
+            if h_bar != self.h_bars[object_id]:
+                self.h_bars[object_id] = h_bar
+                window.clear()
+                changed = True
+        return changed
+
+    def state(self) -> dict:
+        if self.per_object:
+            return {"h_bar": list(self.h_bars), "target_outcomes": self.by_object.state()}
+        return {"h_bar": self.h_bars[0], "target_outcomes": list(self.outcomes)}
+
+    def load(self, checkpoint: dict) -> None:
+        """From a checkpoint's ``h_bar`` and ``target_outcomes`` (those from before the
+        curriculum existed lack both: the task's ``h_bar``, nothing recorded)."""
+        h_bar = checkpoint.get("h_bar", self.reward.h_bar)
+        outcomes = checkpoint.get("target_outcomes", [])
+        if isinstance(h_bar, (int, float)) == self.per_object:
+            raise TrainerError(
+                "checkpoint: its lift curriculum is "
+                f"{'one target for all objects' if self.per_object else 'per object'}, the "
+                "config's is not; resume with the run's own reward.curriculum_per_object"
+            )
+        if self.per_object:
+            self.h_bars = [float(h) for h in h_bar]
+            self.by_object.load(outcomes)
+        else:
+            self.h_bars = [float(h_bar)] * len(self.h_bars)
+            self.outcomes.extend(outcomes)
+
+
 @dataclass(frozen=True)
 class RunDir:
     """A training run on disk: ``config.json`` (the resolved config), ``metrics.csv`` (one row
@@ -211,9 +303,8 @@ def train(
     # Success at the task's lift height (the paper's measure) and, for the curriculum, at the
     # current training target.
     outcomes: deque[bool] = deque(maxlen=window)
-    target_outcomes: deque[bool] = deque(maxlen=window)
     object_outcomes = ObjectOutcomes(window)
-    h_bar = cfg.env.reward.h_bar_start
+    curriculum = LiftCurriculum(cfg.env.reward, len(env.objects.names), window)
     episode_return = torch.zeros(cfg.env.num_envs, device=device)
     episode_length = torch.zeros(cfg.env.num_envs, device=device)
     iteration, wall_offset = 0, 0.0
@@ -222,16 +313,14 @@ def train(
         optimizer.load_state_dict(checkpoint["optimizer"])
         shuffle.set_state(checkpoint["shuffle_rng"])
         outcomes.extend(checkpoint["outcomes"])
-        # (Checkpoints from before the curriculum existed lack both.)
-        target_outcomes.extend(checkpoint.get("target_outcomes", []))
+        curriculum.load(checkpoint)
         object_outcomes.load(checkpoint.get("object_outcomes", {}))  # (older checkpoints: none)
-        h_bar = checkpoint.get("h_bar", cfg.env.reward.h_bar)
         episode_return = checkpoint["episode_return"].to(device)
         episode_length = checkpoint["episode_length"].to(device)
         iteration, wall_offset = checkpoint["iteration"], checkpoint["wall_time_s"]
         env.restore_on_next_reset(checkpoint["env"])
         _truncate_metrics(run.metrics, iteration)
-    env.set_lift_target(h_bar)
+    env.set_lift_target(curriculum.targets())
     collector = Collector(
         env, agent.actor, frames_per_batch=frames, total_frames=-1,
         auto_register_policy_transforms=False,
@@ -287,15 +376,14 @@ def train(
             agent.obs_norm.update(*(data[key] for key in agent.obs_keys))
 
             stats = _episode_stats(
-                data, cfg.env.reward.h_bar, outcomes, target_outcomes, object_outcomes,
+                data, cfg.env.reward.h_bar, outcomes, curriculum, object_outcomes,
                 episode_return, episode_length,
             )
-            row_h_bar = h_bar
-            target_rate = sum(target_outcomes) / len(target_outcomes) if target_outcomes else 0.0
-            h_bar = _next_lift_target(h_bar, target_rate, len(target_outcomes) == window, cfg)
-            if h_bar != row_h_bar:
-                env.set_lift_target(h_bar)
-                target_outcomes.clear()
+            curriculum_on = curriculum.active
+            row_h_bar, target_rate = curriculum.mean_h_bar(), curriculum.rate()
+            row_h_bars = list(curriculum.h_bars)
+            if curriculum.promote():
+                env.set_lift_target(curriculum.targets())
             now = time.perf_counter()
             steps = iteration * frames
             row = {
@@ -318,19 +406,22 @@ def train(
             for key, value in row.items():
                 if key != "iteration":
                     writer.add_scalar(key, value, iteration)
+            if curriculum.per_object:  # each object's own target ("h_bar" is their mean)
+                for name, value in zip(env.objects.names, row_h_bars, strict=True):
+                    writer.add_scalar(f"h_bar/{name}", value, iteration)
             bar.update(frames)
             # No rate before the first episode ends: "nan" would read as a broken run.
             success = f"{row['object_success_rate']:.2f}" if outcomes else "-"
             postfix = {"success": success, "it": iteration}
-            if row_h_bar != cfg.env.reward.h_bar:
+            if curriculum_on:
                 postfix.update(h_bar=f"{row_h_bar:.2f}", at_h_bar=f"{target_rate:.2f}")
             bar.set_postfix(postfix)
             for message in env.backend.drain_warnings():  # e.g. Warp buffers to enlarge
                 bar.write(f"warning: {message}")
             if iteration % cfg.run.checkpoint_every == 0 or iteration == total_iterations:
                 _save_checkpoint(
-                    run, iteration, agent, optimizer, shuffle, outcomes, target_outcomes,
-                    object_outcomes, h_bar, episode_return, episode_length, env,
+                    run, iteration, agent, optimizer, shuffle, outcomes, curriculum,
+                    object_outcomes, episode_return, episode_length, env,
                     row["wall_time_s"],
                 )
     finally:
@@ -350,22 +441,21 @@ def _adapt_lr(optimizer: torch.optim.Optimizer, kl: float, ppo) -> None:  # noqa
             group["lr"] = min(group["lr"] * 1.5, high)
 
 
-def _next_lift_target(h_bar: float, target_rate: float, window_full: bool, cfg: TrainConfig) -> float:  # noqa: E501
-    """The curriculum: raise the training lift target once the running success at it reaches
-    ``h_bar_promote`` over a full window of episodes."""
-    reward = cfg.env.reward
+def _next_lift_target(h_bar: float, target_rate: float, window_full: bool, reward) -> float:  # noqa: ANN001, E501
+    """The curriculum's rule: raise a training lift target once the running success at it
+    reaches ``reward.h_bar_promote`` over a full window of episodes."""
     if h_bar >= reward.h_bar or not window_full or target_rate < reward.h_bar_promote:
         return h_bar
     return round(min(h_bar + reward.h_bar_increment, reward.h_bar), 6)  # no 0.09000000000000001
 
 
 def _episode_stats(
-    data, task_h_bar: float, outcomes: deque, target_outcomes: deque,  # noqa: ANN001
+    data, task_h_bar: float, outcomes: deque, curriculum: LiftCurriculum,  # noqa: ANN001
     object_outcomes: ObjectOutcomes, episode_return: torch.Tensor, episode_length: torch.Tensor,
 ) -> dict[str, float]:
     """Walk the rollout in time (a loop over T steps, not over envs): accumulate returns, record
     the episodes that ended. Updates ``outcomes`` (lifted by the task's ``task_h_bar``),
-    ``target_outcomes`` (by the current training target), ``object_outcomes`` (as
+    ``curriculum`` (by the current training target), ``object_outcomes`` (as
     ``outcomes``, per target object) and the running return/length in place."""
     reward = data["next", "reward"][..., 0]
     done = data["next", "done"][..., 0]
@@ -390,8 +480,9 @@ def _episode_stats(
     ended_success = success.T.cpu()[ended].tolist()
     outcomes.extend(ended_success)
     # The target of an ended episode is in its last step's "next" (the reset comes after).
-    object_outcomes.extend(data["next", "object_id"][..., 0].T.cpu()[ended].tolist(), ended_success)
-    target_outcomes.extend(target_success.T.cpu()[ended].tolist())
+    ended_objects = data["next", "object_id"][..., 0].T.cpu()[ended].tolist()
+    object_outcomes.extend(ended_objects, ended_success)
+    curriculum.record(ended_objects, target_success.T.cpu()[ended].tolist())
     return {
         "episodes": int(ended.sum()),
         "episode_return": float(ended_returns.mean()) if len(ended_returns) else float("nan"),
@@ -423,8 +514,8 @@ def _truncate_metrics(path: Path, iteration: int) -> None:
 
 def _save_checkpoint(
     run: RunDir, iteration: int, agent: Agent, optimizer: torch.optim.Optimizer,
-    shuffle: torch.Generator, outcomes: deque, target_outcomes: deque,
-    object_outcomes: ObjectOutcomes, h_bar: float, episode_return: torch.Tensor,
+    shuffle: torch.Generator, outcomes: deque, curriculum: LiftCurriculum,
+    object_outcomes: ObjectOutcomes, episode_return: torch.Tensor,
     episode_length: torch.Tensor, env: GraspTask, wall_time_s: float,
 ) -> None:
     state = {
@@ -436,9 +527,8 @@ def _save_checkpoint(
         "torch_rng": torch.get_rng_state(),
         **({"cuda_rng": torch.cuda.get_rng_state(env.device)} if env.device.type == "cuda" else {}),
         "outcomes": list(outcomes),
-        "target_outcomes": list(target_outcomes),
+        **curriculum.state(),
         "object_outcomes": object_outcomes.state(),
-        "h_bar": h_bar,
         "episode_return": episode_return.clone(),
         "episode_length": episode_length.clone(),
         "env": env.snapshot(),

@@ -46,6 +46,7 @@ from trainer.assets.scene import (
     ur5e_home_joints,
 )
 from trainer.config import EnvConfig
+from trainer.errors import TrainerError
 from trainer.init_states import load_or_build_bank
 from trainer.kinematics import SiteKinematics, jacobian_transpose_step
 from trainer.objects import ObjectSet, load_objects, resolve_names
@@ -146,7 +147,10 @@ class GraspTask(EnvBase):
             batch_size=[E],
             device=self.device,
         )
-        self.h_bar = torch.tensor(cfg.reward.h_bar, device=self.device)
+        # The lift target per object id (O,), m: cfg.reward.h_bar unless a curriculum lowers it.
+        self.h_bar = torch.full(
+            (len(self.objects.names),), cfg.reward.h_bar, device=self.device
+        )
         self._pending_restore: dict | None = None
         self._task_outputs = self._task_outputs_eager
         self._commands = self._commands_eager
@@ -223,10 +227,18 @@ class GraspTask(EnvBase):
         self.home_qpos = qpos
         self.home_ctrl = ctrl
 
-    def set_lift_target(self, h_bar: float) -> None:
+    def set_lift_target(self, h_bar: float | list[float]) -> None:
         """Lift height (m) that earns the success bonus and ends an episode: ``cfg.reward.h_bar``
-        unless a training curriculum lowers it."""
-        self.h_bar.fill_(h_bar)
+        unless a training curriculum lowers it; one value for every object, or one per object
+        id (a list of ``len(objects.names)``)."""
+        if isinstance(h_bar, (int, float)):
+            self.h_bar.fill_(h_bar)
+            return
+        if len(h_bar) != len(self.h_bar):
+            raise TrainerError(
+                f"lift targets: {len(h_bar)} given for {len(self.h_bar)} objects"
+            )
+        self.h_bar.copy_(torch.tensor(h_bar, dtype=self.h_bar.dtype))
 
     def _set_seed(self, seed: int | None) -> None:
         self._rng.manual_seed(0 if seed is None else seed)
@@ -452,16 +464,17 @@ class GraspTask(EnvBase):
         start_height: torch.Tensor,
         step_count: torch.Tensor,
         target_slot: torch.Tensor,
-        h_bar: torch.Tensor,
+        h_bars: torch.Tensor,
     ) -> tuple[dict, dict, tuple, torch.Tensor]:
         """Everything the task computes from the simulated state, as a pure tensor function
         (``torch.compile`` fuses it when ``cfg.compile``): (observations, reward terms with
         their sum ``reward`` and ``lift_height``, (success, terminated, truncated), palm
-        position (E, 3)). h_bar: the lift target (0-d tensor, m)."""
+        position (E, 3)). h_bars: the lift target per object id (O,), m."""
         poses = self.kinematics.forward(qpos)
         slots = self.slot_poses(qpos)  # (E, K, 7)
         target = slots.gather(1, target_slot[:, None, None].expand(-1, 1, 7))[:, 0]
         target_id = self.assignment.gather(1, target_slot[:, None])[:, 0]
+        h_bar = h_bars[target_id]  # (E,)
         obj_pos, obj_quat = target[:, :3], target[:, 3:]
         tips = poses.site_pos[:, 1:]
         palm_pos, palm_rot = poses.site_pos[:, 0], poses.site_rot[:, 0]
