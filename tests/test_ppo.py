@@ -483,3 +483,29 @@ def test_lift_targets_per_object_decide_success(builtin_data: Config) -> None:
     assert td["success"][:, 0].tolist() == [k % 2 == 0 for k in object_id.tolist()]
     with pytest.raises(TrainerError, match="lift targets"):
         env.set_lift_target(targets[:-1])
+
+
+def test_resume_refuses_a_run_that_predates_the_held_criterion(
+    builtin_data: Config, tmp_path: Path
+) -> None:
+    """A run written before reward.hold_tips trained with any rise as success: resuming it with
+    today's default would change its task mid-run, so it is refused until the value it ran
+    with is written into its config.json."""
+    cfg = tiny_config(builtin_data.data_dir, iterations=2)
+    run = train(cfg, tmp_path / "old", progress=False, stop_after=2)
+    values = json.loads(run.config.read_text())
+    del values["env"]["reward"]["hold_tips"]
+    run.config.write_text(json.dumps(values))
+    extended = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, total_steps=4 * 8 * 3))
+    with pytest.raises(TrainerError, match=r'predates env.reward.hold_tips.*"hold_tips": 0'):
+        train(extended, run.path, resume=True, progress=False)
+    values["env"]["reward"]["hold_tips"] = 0
+    run.config.write_text(json.dumps(values))
+    held_off = dataclasses.replace(
+        extended, env=dataclasses.replace(
+            cfg.env, reward=dataclasses.replace(cfg.env.reward, hold_tips=0)
+        ),
+    )
+    train(held_off, run.path, resume=True, progress=False)
+    rows = list(csv.DictReader(run.metrics.read_text().splitlines()))
+    assert [int(r["iteration"]) for r in rows] == [1, 2, 3]

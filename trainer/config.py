@@ -432,6 +432,26 @@ def train_config_from_dict(values: Any, source: str = "config.json") -> TrainCon
     return _build(TrainConfig, values, source)
 
 
+ABSENT_MEANS: dict[str, Any] = {"env.reward.hold_tips": 0}
+"""Config fields added with a default that changed what a run does: a run directory whose
+config.json predates the field ran with this value (success was any rise by h_bar), not with
+today's default. ``trainer report`` groups such runs by it; ``--resume`` refuses them."""
+
+
+def predated_fields(path: Path) -> dict[str, Any]:
+    """The ``ABSENT_MEANS`` fields (dotted name -> the value the run ran with) that a run
+    directory's config.json lacks."""
+    values = json.loads(Path(path).read_text())
+    missing = {}
+    for dotted, value in ABSENT_MEANS.items():
+        node = values
+        for key in dotted.split("."):
+            node = node.get(key) if isinstance(node, dict) else None
+        if node is None:
+            missing[dotted] = value
+    return missing
+
+
 def read_train_config(path: Path) -> TrainConfig:
     """A run directory's config.json; a missing or garbled file is a one-line error."""
     fix = "pass a run directory written by trainer run"

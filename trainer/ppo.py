@@ -34,7 +34,13 @@ from torchrl.objectives.value import GAE
 from tqdm import tqdm
 
 from geomprep.store import atomic_path
-from trainer.config import TrainConfig, check_device, config_dict, read_train_config
+from trainer.config import (
+    TrainConfig,
+    check_device,
+    config_dict,
+    predated_fields,
+    read_train_config,
+)
 from trainer.errors import TrainerError
 from trainer.models import Agent
 from trainer.tasks import GraspTask, make_env, observation_spec
@@ -252,6 +258,13 @@ def train(
     checkpoint = None
     if resume:
         stored = run.load_config()
+        for dotted, value in predated_fields(run.config).items():
+            parent, name = dotted.rsplit(".", 1)
+            raise TrainerError(
+                f"{run.path} predates {dotted} (it trained with {name} = {value}, not today's "
+                f"default): to resume it as it ran, add \"{name}\": {json.dumps(value)} under "
+                f"{parent} in its config.json"
+            )
         if cfg is None:
             cfg = stored
         _check_same_run(run, stored, cfg)

@@ -15,7 +15,7 @@ other objects (``context``): a bin run and a lift run are different groups even 
 representation. Run directories written before the tasks existed (no ``env.task``) are lift
 runs. Runs of one such group whose configs differ in anything else (physics, PPO settings, the
 budget; not in the seed or in ``NOT_THE_EXPERIMENT``, and only in fields every one of them
-records, or that ``ABSENT_MEANS`` fills in) are split further, and the representation names
+records, or that ``config.ABSENT_MEANS`` fills in) are split further, and the representation names
 the difference, e.g. ``bbox [noslip_iterations=5]``. The runs of a group are then taken to
 differ by seed, and every table cell is a mean ± std (ddof = 0) over them. Units: env steps are
 counted over all parallel environments, wall time is seconds in the data and minutes in tables
@@ -37,6 +37,7 @@ from typing import Any, Literal
 import numpy as np
 
 from geomprep.store import atomic_path
+from trainer.config import ABSENT_MEANS
 from trainer.errors import TrainerError
 
 GroupKey = tuple[str, str, str, str]
@@ -48,9 +49,6 @@ NOT_THE_EXPERIMENT = frozenset({
     "env.data_dir", "env.device",
 })
 """Config fields that seeds of one experiment may differ in: the seed, and how and where it ran."""
-ABSENT_MEANS = {"env.reward.hold_tips": 0}
-"""Config fields added with a default that changed what a run does: a config written before
-the field existed ran with this value (success was any rise by h_bar), not today's default."""
 THRESHOLDS = (0.9, 0.95)
 CURVE_POINTS = 200
 _DASH = "—"
