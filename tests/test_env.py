@@ -21,6 +21,7 @@ from geomprep.rotations import (
 )
 from geomprep.sdf_lookup import naive_query
 from trainer.config import REPRESENTATIONS, load_env_config
+from trainer.errors import TrainerError
 from trainer.representations import object_representation, representation_shape
 from trainer.tasks import GraspTask, make_env
 
@@ -269,3 +270,24 @@ def test_success_is_a_lift_while_held() -> None:
         )
         assert success.tolist() == expected, hold_tips
         assert torch.equal(terminated, success)  # on the table: only a success ends it
+
+
+def test_hold_from_relaxes_only_the_low_training_targets() -> None:
+    """``reward.hold_from``: a curriculum target below it succeeds on any rise (a toss too); at
+    or above it, and so always at the task's h_bar, the target must be held. A hold_from above
+    h_bar would let evaluation count tosses: refused in one line."""
+    from types import SimpleNamespace
+
+    from trainer.config import EnvConfig, RewardConfig
+
+    far, near = 0.2, 0.005
+    lift = torch.tensor([0.06, 0.06, 0.25, 0.25])
+    h_bar = torch.tensor([0.05, 0.05, 0.2, 0.2])  # per env: two at a low target, two at h_bar
+    tip_distance = torch.tensor([[far] * 5, [near] * 5, [far] * 5, [near] * 5])
+    task = SimpleNamespace(cfg=EnvConfig(reward=RewardConfig(hold_from=0.1)))
+    success, _, _ = GraspTask._get_termination(
+        task, lift, h_bar, tip_distance, torch.zeros(4, 3), torch.zeros(4, dtype=torch.long)
+    )
+    assert success.tolist() == [True, True, False, True]
+    with pytest.raises(TrainerError, match=r"hold_from.*at most h_bar"):
+        load_env_config(reward={"hold_from": 0.3})

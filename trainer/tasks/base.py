@@ -571,10 +571,12 @@ class GraspTask(EnvBase):
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(success, terminated, truncated), each (E,) bool: success is the target lifted by
         h_bar while held, ``reward.hold_tips`` fingertip pads within ``reward.hold_distance`` of
-        its surface (tip_distance (E, 5), m): a toss through h_bar is not a lift. A blown-up
-        simulation also truncates; ``_observe`` adds that from the backend's ``unstable``."""
+        its surface (tip_distance (E, 5), m): a toss through h_bar is not a lift (below a
+        training target of ``reward.hold_from`` it is). A blown-up simulation also truncates;
+        ``_observe`` adds that from the backend's ``unstable``."""
         r = self.cfg.reward
         held = (tip_distance < r.hold_distance).sum(-1) >= r.hold_tips
+        held = held | (h_bar < r.hold_from)
         success = (lift >= h_bar) & held
         fell = obj_pos[:, 2] < self.cfg.fall_height
         return success, success | fell, step_count >= self.cfg.max_steps
