@@ -153,11 +153,10 @@ class RewardConfig(_Checked):
     ``hold_tips``; the scripted grasps' lifts: 99 % have two pads within 2 cm."""
     hold_from: float = bounded(0.0, ge=0)
     """Training only: the hold condition applies to lift targets of at least this height (m);
-    at a lower curriculum target any rise succeeds. 0 (the default): always held. With the
-    hold from 3 cm, a CPU run's curriculum stalled at 5 cm (a held 3 cm rise is rare for an
-    untrained policy), where without it the curriculum climbed to 13 cm and the policy then
-    held more lifts at 0.2 m (results/cpu-table1/). At most ``h_bar``, so that evaluation,
-    always at ``h_bar``, counts held lifts only."""
+    at a lower curriculum target any rise succeeds. 0 (the default): always held. Tried at
+    0.1 on the CPU (results/cpu-table1/bbox-holdfrom/): objects flicked up to 9 cm, then
+    stopped at the first held target; no better at 0.2 m than the hold from the start. At most
+    ``h_bar``, so that evaluation, always at ``h_bar``, counts held lifts only."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
