@@ -509,3 +509,37 @@ def test_resume_refuses_a_run_that_predates_the_held_criterion(
     train(held_off, run.path, resume=True, progress=False)
     rows = list(csv.DictReader(run.metrics.read_text().splitlines()))
     assert [int(r["iteration"]) for r in rows] == [1, 2, 3]
+
+
+def test_stagger_episodes_spreads_the_first_episode_ends(builtin_data: Config) -> None:
+    # ppo.stagger_episodes: the first episode of each env starts at a random step, so the
+    # envs reach max_steps (20) in different steps; every later reset starts at step 0.
+    cfg = tiny_config(builtin_data.data_dir)
+    env = make_env(dataclasses.replace(cfg.env, num_envs=8), seed=0)
+    env.stagger_next_reset()
+    td = env.reset()
+    start = env.state["step_count"].clone()
+    assert ((start >= 0) & (start < 20)).all() and len(set(start.tolist())) > 2
+    ended_at = torch.full((8,), -1)
+    for step in range(1, 21):
+        td = env.step(td.set("action", env.hold_action()))["next"]
+        first = td["done"][:, 0] & (ended_at < 0)
+        ended_at[first] = step
+        td = env.reset(td.set("_reset", td["done"]))
+    # Nothing is lifted by holding still: every env is cut at max_steps, after its own share.
+    assert ended_at.tolist() == (20 - start).tolist()
+    env.reset()
+    assert (env.state["step_count"] == 0).all()
+    env.close()
+
+
+def test_training_staggers_only_a_fresh_run(builtin_data: Config, tmp_path: Path) -> None:
+    cfg = tiny_config(builtin_data.data_dir, iterations=2)
+    for stagger in (False, True):
+        run_cfg = dataclasses.replace(
+            cfg, ppo=dataclasses.replace(cfg.ppo, stagger_episodes=stagger)
+        )
+        run = train(run_cfg, tmp_path / str(stagger), progress=False)
+        counts = torch.load(run.last, weights_only=False)["env"]["state"]["step_count"]
+        # 16 steps of 20-step episodes: in lock step without staggering.
+        assert (len(set(counts.tolist())) > 1) == stagger

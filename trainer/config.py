@@ -328,6 +328,12 @@ class PPOConfig(_Checked):
     """Shared per-point MLP of the point-cloud encoder (then max pooling)."""
     context_hidden: tuple[int, ...] = bounded((64, 64), ge=1)
     """Shared per-object MLP of the context encoder (bin task with context; then a masked max)."""
+    stagger_episodes: bool = False
+    """Start every env's first episode at a random step in [0, ``max_steps``), so that the
+    episodes cut at ``max_steps`` end in different rollouts. Without it every env starts and is
+    cut in the same step until successes set them apart, and each rollout holds one phase of
+    the episode (all reaching, or all late); legged_gym randomizes the first episode's length
+    for the same reason. Training only: evaluation always plays whole episodes."""
     init_log_std: float = -0.5
     init_action_mean: tuple[float, ...] = (0.0,) * ACTION_DIM
     """Mean action of the untrained policy (the output layer's bias). Zero (the usual choice)

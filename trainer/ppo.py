@@ -333,6 +333,8 @@ def train(
         iteration, wall_offset = checkpoint["iteration"], checkpoint["wall_time_s"]
         env.restore_on_next_reset(checkpoint["env"])
         _truncate_metrics(run.metrics, iteration)
+    elif ppo.stagger_episodes:
+        env.stagger_next_reset()  # (a resumed run's envs continue where they stood)
     env.set_lift_target(curriculum.targets())
     collector = Collector(
         env, agent.actor, frames_per_batch=frames, total_frames=-1,

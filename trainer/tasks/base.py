@@ -152,6 +152,7 @@ class GraspTask(EnvBase):
             (len(self.objects.names),), cfg.reward.h_bar, device=self.device
         )
         self._pending_restore: dict | None = None
+        self._stagger_next_reset = False
         self._task_outputs = self._task_outputs_eager
         self._commands = self._commands_eager
         if cfg.compile:
@@ -290,6 +291,11 @@ class GraspTask(EnvBase):
             ids = mask.reshape(E).nonzero()[:, 0]
         if len(ids):
             self._reset_envs(ids)
+        if self._stagger_next_reset and mask is None:
+            self._stagger_next_reset = False
+            self.state["step_count"] = torch.randint(
+                self.cfg.max_steps, (E,), generator=self._rng, device=self.device
+            )
         return self._observe(reset=True)
 
     def _reset_envs(self, ids: torch.Tensor) -> None:
@@ -324,6 +330,12 @@ class GraspTask(EnvBase):
         self.backend.set_state(
             ids, qpos, torch.zeros(n, self.backend.nv, device=self.device), fresh["ctrl"], *mocap
         )
+
+    def stagger_next_reset(self) -> None:
+        """Make the next full reset start each env's episode at a random step in
+        [0, ``max_steps``) (``ppo.stagger_episodes``): the episodes then reach ``max_steps``
+        spread over the following rollouts instead of all in the same step."""
+        self._stagger_next_reset = True
 
     # --- checkpoints -------------------------------------------------------------------------
     def snapshot(self) -> dict:
