@@ -271,10 +271,17 @@ def _resume(run_dir: Path, steps: int | None) -> None:
               "bins are drawn from them).")
 @click.option("--max-rounds", default=20, show_default=True,
               help="Bin task: rounds of episodes at most, however few an object has.")
+@click.option("--hold-tips", type=int, default=None,
+              help="Success: lifted by h_bar with this many fingertip pads on the target (0: "
+              "any rise) [the run's reward.hold_tips].")
+@click.option("--iteration", type=int, default=None,
+              help="Evaluate the checkpoint of this training iteration [the last].")
+@click.option("--out", default="eval", show_default=True,
+              help="Folder in the run directory for the results (trainer report reads eval).")
 @click.option("--device", default=None, help="Torch device [the run's].")
 def eval_cmd(
     run_dir: Path, episodes_per_object: int, objects: str | None, max_rounds: int,
-    device: str | None,
+    hold_tips: int | None, iteration: int | None, out: str, device: str | None,
 ) -> None:
     """Success per target object of the deterministic policy (eval/per_object.csv,
     eval/table.md).
@@ -288,8 +295,11 @@ def eval_cmd(
     _device(device)
     from trainer.evaluation import evaluate
 
+    if iteration is not None:
+        _at_least("--iteration", iteration, 1)
     result = evaluate(
-        _run_dir(run_dir), episodes_per_object, objects, device=device, max_rounds=max_rounds
+        _run_dir(run_dir), episodes_per_object, objects, device=device, max_rounds=max_rounds,
+        hold_tips=hold_tips, iteration=iteration, out=out,
     )
     click.echo(f"{result.describe()}: success per target object")
     width = max(len(n) for n in result.names)

@@ -52,6 +52,8 @@ class EvalResult:
     absent: list[str] = dataclasses.field(default_factory=list)
     success_text: str = ""
     """What counted as a success (``RewardConfig.success_text``)."""
+    iteration: int | None = None
+    """The checkpoint evaluated: that of this training iteration (None: the run's last)."""
 
     @property
     def overall(self) -> float:
@@ -138,10 +140,16 @@ def evaluate(
     max_envs: int = 1024,
     device: str | None = None,
     max_rounds: int = MAX_ROUNDS,
+    hold_tips: int | None = None,
+    iteration: int | None = None,
+    out: str = "eval",
 ) -> EvalResult:
-    """Evaluate the run's last checkpoint on its object set (or ``objects``), on ``device``
-    (default: the run's), for the run's task; writes ``eval/per_object.csv`` and
-    ``eval/table.md`` in the run directory.
+    """Evaluate the run's last checkpoint (or that of ``iteration``) on its object set (or
+    ``objects``), on ``device`` (default: the run's), for the run's task; writes
+    ``per_object.csv`` and ``table.md`` in the run directory's folder ``out``.
+
+    Success is the run's (``reward.hold_tips`` of its config) unless ``hold_tips`` is given:
+    e.g. 2 evaluates a run trained on any rise (``hold_tips = 0``) by held lifts only.
 
     Lift: exactly ``episodes_per_object`` episodes of each object. Bin: rounds of episodes on
     the run's bins (drawn from ``objects`` instead when given), balanced over the targets, until
@@ -151,7 +159,12 @@ def evaluate(
         raise TrainerError(f"episodes_per_object must be >= 1, got {episodes_per_object}")
     if max_rounds < 1:
         raise TrainerError(f"max_rounds must be >= 1, got {max_rounds}")
-    cfg, agent = load_agent(run_dir, device)
+    if not out or Path(out).name != out or out in (".", ".."):
+        raise TrainerError(f"out {out!r}: give a folder name inside the run directory, e.g. eval")
+    cfg, agent = load_agent(run_dir, device, iteration)
+    if hold_tips is not None:
+        reward = dataclasses.replace(cfg.env.reward, hold_tips=hold_tips)
+        cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, reward=reward))
     names = resolve_names(objects or cfg.env.objects, cfg.env.data_dir)
     if cfg.env.task == "bin":
         result = _evaluate_bin(
@@ -159,8 +172,10 @@ def evaluate(
         )
     else:
         result = _evaluate_lift(cfg.env, agent.actor, names, episodes_per_object, seed, max_envs)
-    result = dataclasses.replace(result, success_text=cfg.env.reward.success_text())
-    write_eval(RunDir(Path(run_dir)), result)
+    result = dataclasses.replace(
+        result, success_text=cfg.env.reward.success_text(), iteration=iteration
+    )
+    write_eval(RunDir(Path(run_dir)), result, out)
     return result
 
 
@@ -282,10 +297,11 @@ def _evaluate_bin(
     )
 
 
-def write_eval(run: RunDir, result: EvalResult) -> None:
+def write_eval(run: RunDir, result: EvalResult, folder: str = "eval") -> None:
     """``eval/per_object.csv`` (object, episodes, successes, success_rate, then the task as the
-    policy saw it: task, bin_objects, context, representation) and ``eval/table.md``."""
-    out = run.path / "eval"
+    policy saw it: task, bin_objects, context, representation) and ``eval/table.md`` (in
+    ``folder`` instead of ``eval/`` when given)."""
+    out = run.path / folder
     out.mkdir(parents=True, exist_ok=True)
     task = [result.task, result.bin_objects or "", result.context, result.representation]
     with atomic_path(out / "per_object.csv") as tmp, open(tmp, "w", newline="") as handle:
@@ -295,8 +311,10 @@ def write_eval(run: RunDir, result: EvalResult) -> None:
         for k, name in enumerate(result.names):
             rate = f"{result.rate(k):.4f}" if result.episodes[k] else ""
             writer.writerow([name, result.episodes[k], result.successes[k], rate, *task])
+    checkpoint = ("the last checkpoint" if result.iteration is None
+                  else f"the checkpoint of iteration {result.iteration}")
     lines = [
-        f"Success per target object: {result.describe()}.",
+        f"Success per target object: {result.describe()}; {checkpoint}.",
         "",
         *([f"Success: the target {result.success_text}.", ""] if result.success_text else []),
         f"| object | episodes | {result.label} |",

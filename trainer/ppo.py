@@ -610,9 +610,30 @@ def _load_checkpoint(run: RunDir, map_location: str | None = None) -> dict[str, 
     raise TrainerError(f"{run.path}: no checkpoint yet ({run.last}): train it with trainer run")
 
 
-def load_agent(run_dir: Path, device: str | None = None) -> tuple[TrainConfig, Agent]:
+def _load_iteration(run: RunDir, iteration: int) -> dict[str, Any]:
+    """The state of ``checkpoints/iter_NNNNNN.pt`` for ``iteration``, exactly that one."""
+    path = run.checkpoints / f"iter_{iteration:06d}.pt"
+    if not path.is_file():
+        kept = sorted(int(p.stem[5:]) for p in run.checkpoints.glob("iter_*.pt"))
+        listed = ", ".join(map(str, kept)) if len(kept) <= 4 else (
+            f"{kept[0]}, {kept[1]}, ..., {kept[-1]}")
+        have = f"it has iterations {listed}" if kept else "it has none"
+        raise TrainerError(f"{run.path}: no checkpoint of iteration {iteration} ({have})")
+    try:
+        state = torch.load(path, weights_only=False, map_location="cpu")
+    except Exception as exc:  # noqa: BLE001 (whatever torch.load raises, the file is bad)
+        raise TrainerError(f"{path}: unreadable ({type(exc).__name__})") from None
+    if not isinstance(state, dict) or any(k not in state for k in CHECKPOINT_KEYS):
+        raise TrainerError(f"{path}: not a checkpoint")
+    return state
+
+
+def load_agent(
+    run_dir: Path, device: str | None = None, iteration: int | None = None
+) -> tuple[TrainConfig, Agent]:
     """A trained run's config and agent (networks + normalizers) from its last readable
-    checkpoint, on ``device`` (default: the run's), which the returned config names."""
+    checkpoint (or that of ``iteration``), on ``device`` (default: the run's), which the
+    returned config names."""
     run = RunDir(Path(run_dir))
     cfg = run.load_config()
     if device is not None:
@@ -620,7 +641,10 @@ def load_agent(run_dir: Path, device: str | None = None) -> tuple[TrainConfig, A
     check_device(
         cfg.env.device, f"device {cfg.env.device!r} of {run.path}", "pass --device cpu"
     )
-    state = _load_checkpoint(run, map_location="cpu")  # whatever device it was trained on
+    if iteration is None:
+        state = _load_checkpoint(run, map_location="cpu")  # whatever device it was trained on
+    else:
+        state = _load_iteration(run, iteration)
     agent = Agent(observation_spec(cfg.env, 1)["observation"], cfg.ppo)
     agent.load_state_dict(state["agent"])
     agent.eval()
