@@ -459,6 +459,28 @@ def test_resume_with_steps_extends_the_run(
     )
 
 
+def test_time_budget_stops_with_a_checkpoint_and_resume_extends_it(
+    builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
+) -> None:
+    cfg = tiny_config(builtin_data.data_dir, iterations=4)
+    cfg = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, max_minutes=1e-6))
+    run = train(cfg, tmp_path / "run", progress=False)
+    # The first iteration ends past 0.06 ms: stopped there, its checkpoint written (not only
+    # every checkpoint_every = 2 iterations).
+    assert metrics_iterations(run.path) == [1]
+    assert torch.load(run.last, weights_only=False)["iteration"] == 1
+    code, _, err = main(["run", "--resume", str(run.path)], monkeypatch, capsys)
+    assert code == 1 and err.count("\n") == 1, err
+    assert err.startswith(f"error: {run.path} has used its time budget (0.0 of 1e-06 minutes): "
+                          "pass --minutes with more than 0.0 to extend it"), err
+    code, out, err = main(["run", "--resume", str(run.path), "--minutes", "60"], monkeypatch,
+                          capsys)
+    assert code == 0, err
+    assert "time budget 60 min, was 1e-06" in out
+    assert metrics_iterations(run.path) == [1, 2, 3, 4]  # on to total_steps
+    assert json.loads(run.config.read_text())["run"]["max_minutes"] == 60
+
+
 def test_eval_and_play_bad_input_is_one_line(
     killed_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
 ) -> None:

@@ -224,7 +224,9 @@ def test_lift_eval_names_the_task(
     assert [int(r["episodes"]) for r in rows.values()] == [3, 3]  # exactly, as before the tasks
     assert {r["task"] for r in rows.values()} == {"lift"}
     table = (lift_run / "eval" / "table.md").read_text()
-    assert table.startswith("Success per target object: task lift, representation com.")
+    assert table.startswith(
+        "Success per target object: task lift, representation com; the last checkpoint."
+    )
     assert "| object | episodes | com |" in table and "| **all (6 episodes)** |" in table
 
 

@@ -37,6 +37,7 @@ RUN_OPTIONS = {
     "representation": "--repr", "reward.kind": "--reward", "robot.kind": "--robot",
     "objects": "--objects", "num_envs": "--num-envs", "device": "--device",
     "data_dir": "--data-dir", "compile": "--compile", "total_steps": "--steps", "seed": "--seed",
+    "max_minutes": "--minutes",
     "task": "--task", "bin.num_objects": "--bin-objects", "context": "--context",
     "backend": "--backend",
 }
@@ -173,6 +174,9 @@ def demo(
 @click.option("--objects", default=None, help="Object set (builtin, ycb, all) or names.")
 @click.option("--num-envs", type=int, default=None, help="Parallel environments [64].")
 @click.option("--steps", type=int, default=None, help="Total environment steps [10M].")
+@click.option("--minutes", type=float, default=None,
+              help="Stop (with a checkpoint) once training has run this long, a resumed run's "
+              "earlier parts included [no limit].")
 @click.option("--seed", type=int, default=None, help="[0]")
 @click.option("--device", default=None, help="Torch device of the networks and tensors [cpu].")
 @click.option("--run-dir", type=click.Path(path_type=Path, file_okay=False), default=None,
@@ -190,7 +194,8 @@ def demo(
 def run(
     task: str | None, bin_objects: int | None, context: str | None, backend: str | None,
     representation: str | None, reward: str | None, robot: str | None, objects: str | None,
-    num_envs: int | None, steps: int | None, seed: int | None, device: str | None,
+    num_envs: int | None, steps: int | None, minutes: float | None, seed: int | None,
+    device: str | None,
     run_dir: Path | None, resume_dir: Path | None, overwrite: bool, compile_env: bool | None,
     config_path: Path | None, data_dir: Path | None,
 ) -> None:
@@ -216,7 +221,7 @@ def run(
                     f"{option} cannot change a resumed run (it keeps its config.json): drop "
                     f"{option}, or start a new run with another --run-dir"
                 )
-        _resume(resume_dir, steps)
+        _resume(resume_dir, steps, minutes)
         return
     env = {
         k: v for k, v in {
@@ -228,7 +233,10 @@ def run(
             "robot": {"kind": robot} if robot else None,
         }.items() if v is not None
     }
-    run_over = {k: v for k, v in {"total_steps": steps, "seed": seed}.items() if v is not None}
+    run_over = {
+        k: v for k, v in {"total_steps": steps, "seed": seed, "max_minutes": minutes}.items()
+        if v is not None
+    }
     cfg = load_train_config(config_path, env=env, run=run_over, names=RUN_OPTIONS)
     where = f"--device {device}" if device else f"device {cfg.env.device!r} in {config_path}"
     check_device(cfg.env.device, where, "use --device cpu")
@@ -247,19 +255,21 @@ def run(
     train(cfg, run_dir, overwrite=overwrite)
 
 
-def _resume(run_dir: Path, steps: int | None) -> None:
+def _resume(run_dir: Path, steps: int | None, minutes: float | None) -> None:
     from trainer.ppo import RunDir, train
 
     cfg = RunDir(run_dir).load_config()
+    changes, said = {}, []
+    # Neutral wording: a --steps below what the run has done is refused next, by train().
     if steps is not None:
-        before = cfg.run.total_steps
-        cfg = dataclasses.replace(
-            cfg, run=override(cfg.run, {"total_steps": steps}, RUN_OPTIONS)
-        )
-        # Neutral wording: a --steps below what the run has done is refused next, by train().
-        click.echo(f"run: {run_dir} (resumed; total steps {steps:,}, was {before:,})")
-    else:
-        click.echo(f"run: {run_dir} (resumed)")
+        changes["total_steps"] = steps
+        said.append(f"total steps {steps:,}, was {cfg.run.total_steps:,}")
+    if minutes is not None:
+        changes["max_minutes"] = minutes
+        said.append(f"time budget {minutes:g} min, was {cfg.run.max_minutes:g}")
+    if changes:
+        cfg = dataclasses.replace(cfg, run=override(cfg.run, changes, RUN_OPTIONS))
+    click.echo(f"run: {run_dir} (resumed{'; ' if said else ''}{'; '.join(said)})")
     train(cfg, run_dir, resume=True)
 
 

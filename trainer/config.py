@@ -364,6 +364,12 @@ class RunConfig(_Checked):
     total_steps: int = bounded(10_000_000, ge=1)
     """Environment steps (actions of one env count one) before the run stops."""
     seed: int = bounded(0, ge=0)
+    max_minutes: float = bounded(0.0, ge=0)
+    """Wall-clock budget (minutes of training, a resumed run's earlier parts included; 0: none):
+    the run stops, with a checkpoint, after the first iteration that ends past it, whatever
+    ``total_steps`` says. For budgets stated in time (an hour of CPU) and for chunks that must
+    end before a lent device's per-command limit (``--minutes 9``, then ``--resume DIR
+    --minutes 18``, ...)."""
     checkpoint_every: int = bounded(10, ge=1)
     """Iterations between checkpoints (the last one is always written)."""
     success_window: int = bounded(0, ge=0)

@@ -248,9 +248,9 @@ def train(
     """Train (or, with ``resume``, continue) the run in ``run_dir``; returns it.
 
     With ``resume``, ``cfg`` is None (the run's config.json) or that config with a larger
-    ``run.total_steps`` (extend the run). Without it, a directory that already holds a run is
-    refused unless ``overwrite`` (which deletes that run first): appending to its metrics would
-    mix two runs.
+    ``run.total_steps`` or ``run.max_minutes`` (extend the run). Without it, a directory that
+    already holds a run is refused unless ``overwrite`` (which deletes that run first):
+    appending to its metrics would mix two runs.
 
     ``stop_after``: leave after this many iterations of this call, as a killed run would (the
     work since the last checkpoint is lost); used by the resume test."""
@@ -274,6 +274,12 @@ def train(
             raise TrainerError(
                 f"{run.path} is complete ({done * frames} steps of {cfg.run.total_steps}): "
                 f"pass --steps with more than {done * frames} to extend it"
+            )
+        spent = checkpoint["wall_time_s"] / 60
+        if _out_of_time(cfg, checkpoint["wall_time_s"]):
+            raise TrainerError(
+                f"{run.path} has used its time budget ({spent:.1f} of {cfg.run.max_minutes:g} "
+                f"minutes): pass --minutes with more than {spent:.1f} to extend it"
             )
     elif run.holds_run():
         if not overwrite:
@@ -433,17 +439,31 @@ def train(
             bar.set_postfix(postfix)
             for message in env.backend.drain_warnings():  # e.g. Warp buffers to enlarge
                 bar.write(f"warning: {message}")
-            if iteration % cfg.run.checkpoint_every == 0 or iteration == total_iterations:
+            out_of_time = _out_of_time(cfg, row["wall_time_s"])
+            if (iteration % cfg.run.checkpoint_every == 0 or iteration == total_iterations
+                    or out_of_time):
                 _save_checkpoint(
                     run, iteration, agent, optimizer, shuffle, outcomes, curriculum,
                     object_outcomes, episode_return, episode_length, env,
                     row["wall_time_s"],
                 )
+            if out_of_time and iteration < total_iterations:
+                bar.write(
+                    f"stopped: time budget of {cfg.run.max_minutes:g} minutes used "
+                    f"({steps:,} env steps, iteration {iteration}); extend it with "
+                    f"--resume {run.path} --minutes M"
+                )
+                break
     finally:
         bar.close()
         writer.close()
         collector.shutdown()
     return run
+
+
+def _out_of_time(cfg: TrainConfig, wall_time_s: float) -> bool:
+    """The run's time budget (``run.max_minutes``; 0: none) is used up."""
+    return cfg.run.max_minutes > 0 and wall_time_s >= 60 * cfg.run.max_minutes
 
 
 def _adapt_lr(optimizer: torch.optim.Optimizer, kl: float, ppo) -> None:  # noqa: ANN001
@@ -559,7 +579,8 @@ def _save_checkpoint(
 def _check_same_run(run: RunDir, stored: TrainConfig, cfg: TrainConfig) -> None:
     """A resumed run continues bit for bit only with its own config; its length may grow."""
     changed = [
-        k for k in _changed_keys(config_dict(stored), config_dict(cfg)) if k != "run.total_steps"
+        k for k in _changed_keys(config_dict(stored), config_dict(cfg))
+        if k not in ("run.total_steps", "run.max_minutes")
     ]
     if changed:
         raise TrainerError(
