@@ -278,28 +278,28 @@ def test_eval_counts_match_a_manual_count(builtin_data: Config, tmp_path: Path) 
 def test_eval_of_a_chosen_checkpoint_and_success_criterion(
     builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
 ) -> None:
-    """--iteration evaluates that checkpoint, --hold-tips replaces the run's success criterion,
-    --out writes elsewhere than eval/; each bad value is a one-line error."""
+    """--iteration evaluates that checkpoint, --hold-tips and --h-bar replace the run's success
+    criterion, --out writes elsewhere than eval/; each bad value is a one-line error."""
     cfg = tiny_config(builtin_data.data_dir, iterations=3)  # checkpoints of iterations 2 and 3
     run = train(cfg, tmp_path / "run", progress=False)
     result = evaluate(run.path, episodes_per_object=3, seed=5, iteration=2, hold_tips=0,
-                      out="eval-it2")
+                      h_bar=0.01, out="eval-it2")
     _, agent = load_agent(run.path, iteration=2)
     stored = torch.load(run.checkpoints / "iter_000002.pt", weights_only=False)["agent"]
     last = torch.load(run.last, weights_only=False)["agent"]
     for key, value in agent.state_dict().items():
         assert torch.equal(value, stored[key]), key
     assert any(not torch.equal(stored[k], last[k]) for k in stored)  # a different policy
-    # The same episodes by hand, with any rise as success.
-    env_cfg = dataclasses.replace(
-        cfg.env, num_envs=6, reward=dataclasses.replace(cfg.env.reward, hold_tips=0)
-    )
+    # The same episodes by hand, with any rise by 1 cm as success.
+    reward = dataclasses.replace(cfg.env.reward, hold_tips=0, h_bar=0.01, h_bar_start=0.01)
+    env_cfg = dataclasses.replace(cfg.env, num_envs=6, reward=reward)
     env = make_env(env_cfg, seed=5)
     success, _, _ = run_episodes(env, agent.actor)
     ids = env.target_objects()
     assert result.successes == [int(success[ids == k].sum()) for k in range(2)]
     table = (run.path / "eval-it2" / "table.md").read_text()
-    assert "the checkpoint of iteration 2" in table and "(held or not)" in table
+    assert "the checkpoint of iteration 2" in table
+    assert "lifted by 0.01 m (held or not)" in table
     assert not (run.path / "eval").exists()
     code, out, _ = main(["eval", str(run.path), "--episodes-per-object", "1"], monkeypatch,
                         capsys)
@@ -310,6 +310,7 @@ def test_eval_of_a_chosen_checkpoint_and_success_criterion(
                                "iterations 2, 3)"),
         (["--iteration", "0"], "error: --iteration 0: must be >= 1"),
         (["--hold-tips", "9"], "error: hold_tips = 9: must be >= 0 and <= 5"),
+        (["--h-bar", "0"], "error: h_bar = 0"),
         (["--out", "../elsewhere"], "error: out '../elsewhere': give a folder name"),
     ]:
         code, _, err = main(["eval", str(run.path), *argv], monkeypatch, capsys)

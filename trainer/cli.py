@@ -284,6 +284,8 @@ def _resume(run_dir: Path, steps: int | None, minutes: float | None) -> None:
 @click.option("--hold-tips", type=int, default=None,
               help="Success: lifted by h_bar with this many fingertip pads on the target (0: "
               "any rise) [the run's reward.hold_tips].")
+@click.option("--h-bar", type=float, default=None,
+              help="Success: lifted by this many metres [the run's reward.h_bar, 0.2].")
 @click.option("--iteration", type=int, default=None,
               help="Evaluate the checkpoint of this training iteration [the last].")
 @click.option("--out", default="eval", show_default=True,
@@ -291,7 +293,8 @@ def _resume(run_dir: Path, steps: int | None, minutes: float | None) -> None:
 @click.option("--device", default=None, help="Torch device [the run's].")
 def eval_cmd(
     run_dir: Path, episodes_per_object: int, objects: str | None, max_rounds: int,
-    hold_tips: int | None, iteration: int | None, out: str, device: str | None,
+    hold_tips: int | None, h_bar: float | None, iteration: int | None, out: str,
+    device: str | None,
 ) -> None:
     """Success per target object of the deterministic policy (eval/per_object.csv,
     eval/table.md).
@@ -309,7 +312,7 @@ def eval_cmd(
         _at_least("--iteration", iteration, 1)
     result = evaluate(
         _run_dir(run_dir), episodes_per_object, objects, device=device, max_rounds=max_rounds,
-        hold_tips=hold_tips, iteration=iteration, out=out,
+        hold_tips=hold_tips, h_bar=h_bar, iteration=iteration, out=out,
     )
     click.echo(f"{result.describe()}: success per target object")
     width = max(len(n) for n in result.names)

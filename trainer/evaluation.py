@@ -143,13 +143,16 @@ def evaluate(
     hold_tips: int | None = None,
     iteration: int | None = None,
     out: str = "eval",
+    h_bar: float | None = None,
 ) -> EvalResult:
     """Evaluate the run's last checkpoint (or that of ``iteration``) on its object set (or
     ``objects``), on ``device`` (default: the run's), for the run's task; writes
     ``per_object.csv`` and ``table.md`` in the run directory's folder ``out``.
 
-    Success is the run's (``reward.hold_tips`` of its config) unless ``hold_tips`` is given:
-    e.g. 2 evaluates a run trained on any rise (``hold_tips = 0``) by held lifts only.
+    Success is the run's (``reward.h_bar`` and ``reward.hold_tips`` of its config) unless
+    ``h_bar`` or ``hold_tips`` is given: e.g. ``hold_tips = 2`` evaluates a run trained on any
+    rise by held lifts only, ``h_bar = 0.05`` how often the targets are lifted by 5 cm (the
+    reward and the episode's end follow it, as in training at that curriculum target).
 
     Lift: exactly ``episodes_per_object`` episodes of each object. Bin: rounds of episodes on
     the run's bins (drawn from ``objects`` instead when given), balanced over the targets, until
@@ -162,9 +165,15 @@ def evaluate(
     if not out or Path(out).name != out or out in (".", ".."):
         raise TrainerError(f"out {out!r}: give a folder name inside the run directory, e.g. eval")
     cfg, agent = load_agent(run_dir, device, iteration)
+    reward = cfg.env.reward
     if hold_tips is not None:
-        reward = dataclasses.replace(cfg.env.reward, hold_tips=hold_tips)
-        cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, reward=reward))
+        reward = dataclasses.replace(reward, hold_tips=hold_tips)
+    if h_bar is not None:
+        # One height: the curriculum's start and hold_from (training's) may not exceed it.
+        reward = dataclasses.replace(
+            reward, h_bar=h_bar, h_bar_start=h_bar, hold_from=min(reward.hold_from, h_bar)
+        )
+    cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, reward=reward))
     names = resolve_names(objects or cfg.env.objects, cfg.env.data_dir)
     if cfg.env.task == "bin":
         result = _evaluate_bin(
