@@ -207,6 +207,10 @@ class RunDir:
     def last(self) -> Path:
         return self.checkpoints / "last.pt"
 
+    def checkpoint(self, iteration: int) -> Path:
+        """The checkpoint written at the end of ``iteration``."""
+        return self.checkpoints / f"iter_{iteration:06d}.pt"
+
     def load_config(self) -> TrainConfig:
         if not self.path.is_dir():
             raise TrainerError(
@@ -275,8 +279,8 @@ def train(
                 f"{run.path} is complete ({done * frames} steps of {cfg.run.total_steps}): "
                 f"pass --steps with more than {done * frames} to extend it"
             )
-        spent = checkpoint["wall_time_s"] / 60
         if _out_of_time(cfg, checkpoint["wall_time_s"]):
+            spent = checkpoint["wall_time_s"] / 60
             raise TrainerError(
                 f"{run.path} has used its time budget ({spent:.1f} of {cfg.run.max_minutes:g} "
                 f"minutes): pass --minutes with more than {spent:.1f} to extend it"
@@ -569,8 +573,7 @@ def _save_checkpoint(
         "env": env.snapshot(),
     }
     run.checkpoints.mkdir(parents=True, exist_ok=True)
-    path = run.checkpoints / f"iter_{iteration:06d}.pt"
-    with atomic_path(path) as tmp:
+    with atomic_path(run.checkpoint(iteration)) as tmp:
         torch.save(state, tmp)
     with atomic_path(run.last) as tmp:
         torch.save(state, tmp)
@@ -608,14 +611,9 @@ def _load_checkpoint(run: RunDir, map_location: str | None = None) -> dict[str, 
     for path in candidates:
         if not path.is_file():
             continue
-        try:
-            state = torch.load(path, weights_only=False, map_location=map_location)
-        except Exception as exc:  # noqa: BLE001 (whatever torch.load raises, the file is bad)
-            # An EOFError must not escape: click would turn it into "aborted", as for Ctrl-C.
-            unreadable.append(f"{path.name} ({type(exc).__name__})")
-            continue
-        if not isinstance(state, dict) or any(k not in state for k in CHECKPOINT_KEYS):
-            unreadable.append(f"{path.name} (not a checkpoint)")
+        state = _read_checkpoint(path, map_location)
+        if isinstance(state, str):
+            unreadable.append(f"{path.name} ({state})")
             continue
         if unreadable:
             print(
@@ -631,21 +629,31 @@ def _load_checkpoint(run: RunDir, map_location: str | None = None) -> dict[str, 
     raise TrainerError(f"{run.path}: no checkpoint yet ({run.last}): train it with trainer run")
 
 
+def _read_checkpoint(path: Path, map_location: str | None) -> dict[str, Any] | str:
+    """The state in the checkpoint file ``path``, or why it is not one (a reason, not raised:
+    ``_load_checkpoint`` then tries the next file)."""
+    try:
+        state = torch.load(path, weights_only=False, map_location=map_location)
+    except Exception as exc:  # noqa: BLE001 (whatever torch.load raises, the file is bad)
+        # An EOFError must not escape: click would turn it into "aborted", as for Ctrl-C.
+        return type(exc).__name__
+    if not isinstance(state, dict) or any(k not in state for k in CHECKPOINT_KEYS):
+        return "not a checkpoint"
+    return state
+
+
 def _load_iteration(run: RunDir, iteration: int) -> dict[str, Any]:
-    """The state of ``checkpoints/iter_NNNNNN.pt`` for ``iteration``, exactly that one."""
-    path = run.checkpoints / f"iter_{iteration:06d}.pt"
+    """The state of the checkpoint of ``iteration``, exactly that one."""
+    path = run.checkpoint(iteration)
     if not path.is_file():
         kept = sorted(int(p.stem[5:]) for p in run.checkpoints.glob("iter_*.pt"))
         listed = ", ".join(map(str, kept)) if len(kept) <= 4 else (
             f"{kept[0]}, {kept[1]}, ..., {kept[-1]}")
         have = f"it has iterations {listed}" if kept else "it has none"
         raise TrainerError(f"{run.path}: no checkpoint of iteration {iteration} ({have})")
-    try:
-        state = torch.load(path, weights_only=False, map_location="cpu")
-    except Exception as exc:  # noqa: BLE001 (whatever torch.load raises, the file is bad)
-        raise TrainerError(f"{path}: unreadable ({type(exc).__name__})") from None
-    if not isinstance(state, dict) or any(k not in state for k in CHECKPOINT_KEYS):
-        raise TrainerError(f"{path}: not a checkpoint")
+    state = _read_checkpoint(path, map_location="cpu")  # whatever device it was trained on
+    if isinstance(state, str):
+        raise TrainerError(f"{path}: unreadable ({state})")
     return state
 
 
