@@ -35,7 +35,7 @@ from scipy.interpolate import RegularGridInterpolator
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from geomprep.rotations import quat_to_matrix, random_quats  # noqa: E402
+from geomgrasp.rotations import quat_to_matrix, random_quats  # noqa: E402
 from geomprep.sdf import voxel_centers  # noqa: E402
 from geomprep.sdf_lookup import SDFLookup, empty_grids  # noqa: E402
 

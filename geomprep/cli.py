@@ -15,9 +15,10 @@ from typing import TYPE_CHECKING
 
 import click
 
+from geomgrasp.cli import run_cli
 from geomprep import importer, ycb, ycb_download
 from geomprep.config import Config, load_config
-from geomprep.errors import GeomprepError, run_cli
+from geomprep.errors import GeomprepError
 
 if TYPE_CHECKING:
     from geomprep import pipeline

@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 
 import geomprep
+from geomgrasp.files import atomic_path
 from geomprep import (
     bbox,
     builtin,
@@ -297,7 +298,7 @@ def run_mjcf(cfg: Config, name: str) -> Groups:
     hull_arrays, _ = store.read_group(stage_path(cfg, name, "decompose"), "decomposition")
     hulls = decompose.unpack_hulls(hull_arrays)
     final_dir = cfg.processed_dir / name
-    with store.atomic_path(final_dir) as tmp_dir:
+    with atomic_path(final_dir) as tmp_dir:
         tmp_dir.mkdir(parents=True)
         mjcf.write_model_dir(
             tmp_dir,

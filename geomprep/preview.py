@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 import h5py
 import numpy as np
 
+from geomgrasp.files import atomic_path
 from geomprep import decompose, store, superquadric
 
 if TYPE_CHECKING:
@@ -215,7 +216,7 @@ def render(sources: Mapping[str, Path], out: Path, title: str) -> None:
     fig.suptitle(title)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
-    with store.atomic_path(out) as tmp:
+    with atomic_path(out) as tmp:
         fig.savefig(tmp, dpi=80, format="png")
     plt.close(fig)
 

@@ -49,9 +49,9 @@ import h5py
 import numpy as np
 import torch
 
+from geomgrasp.rotations import quat_to_matrix
 from geomprep import sdf_lookup_cpu
 from geomprep.errors import GeomprepError
-from geomprep.rotations import quat_to_matrix
 
 # Relative rounding error of float16 storage (half an ulp of an 11-bit significand).
 FLOAT16_RELATIVE_ERROR = 2.0**-11

@@ -10,15 +10,14 @@ Whether a file is still what was written is ``cache``'s business (the build reco
 from __future__ import annotations
 
 import json
-import os
-import shutil
-from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import h5py
 import numpy as np
+
+from geomgrasp.files import atomic_path
 
 # Which group of the contract each stage fills.
 STAGE_GROUPS: dict[str, str] = {
@@ -30,26 +29,6 @@ STAGE_GROUPS: dict[str, str] = {
     "sq": "superquadric",
     "pc": "pointcloud",
 }
-
-
-@contextmanager
-def atomic_path(path: Path) -> Iterator[Path]:
-    """Yield a temporary sibling of ``path``; rename it onto ``path`` only if the block succeeds."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    for stale in path.parent.glob(f".{path.name}.tmp-*"):  # left by a killed run
-        shutil.rmtree(stale, ignore_errors=True) if stale.is_dir() else stale.unlink(
-            missing_ok=True
-        )
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        yield tmp
-        os.replace(tmp, path)
-    finally:
-        if tmp.is_dir():
-            shutil.rmtree(tmp, ignore_errors=True)
-        elif tmp.exists():
-            tmp.unlink()
 
 
 def _write_attrs(obj: h5py.HLObject, attrs: Mapping[str, Any]) -> None:

@@ -15,8 +15,8 @@ import torch
 from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs
 
+from geomgrasp.rotations import quat_to_matrix
 from geomprep.config import Config
-from geomprep.rotations import quat_to_matrix
 from trainer.config import load_env_config
 from trainer.errors import TrainerError
 from trainer.representations import object_representation

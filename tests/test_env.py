@@ -12,13 +12,13 @@ import torch
 from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs
 
-from geomprep.config import Config
-from geomprep.rotations import (
+from geomgrasp.rotations import (
     axis_angle_to_matrix,
     euler_xyz_to_matrix,
     matrix_to_quat,
     quat_to_matrix,
 )
+from geomprep.config import Config
 from geomprep.sdf_lookup import naive_query
 from trainer.config import REPRESENTATIONS, load_env_config
 from trainer.errors import TrainerError

@@ -1,4 +1,4 @@
-"""Tests for geomprep.rotations: every function against scipy's Rotation on random rotations,
+"""Tests for geomgrasp.rotations: every function against scipy's Rotation on random rotations,
 in float64 and float32 and over the batch shapes (), (5,) and (2, 3); round trips through the
 hard cases (angle 0 and near pi, Euler angles at and next to gimbal lock); the uniformity and
 determinism of random_quats."""
@@ -13,7 +13,7 @@ import torch
 from scipy import stats
 from scipy.spatial.transform import Rotation
 
-from geomprep.rotations import (
+from geomgrasp.rotations import (
     axis_angle_to_matrix,
     axis_angle_to_quat,
     euler_xyz_to_matrix,

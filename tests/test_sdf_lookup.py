@@ -16,9 +16,9 @@ import torch
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from geomgrasp.rotations import quat_to_matrix
 from geomprep import sdf_lookup_cpu
 from geomprep.errors import GeomprepError
-from geomprep.rotations import quat_to_matrix
 from geomprep.sdf import SDFGrid, compute_sdf, voxel_centers
 from geomprep.sdf_lookup import (
     FLOAT16_RELATIVE_ERROR,

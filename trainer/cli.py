@@ -16,7 +16,7 @@ from pathlib import Path  # noqa: E402
 
 import click  # noqa: E402
 
-from geomprep.errors import run_cli  # noqa: E402
+from geomgrasp.cli import run_cli  # noqa: E402
 from trainer.config import (  # noqa: E402
     BACKENDS,
     CONTEXTS,

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
-from geomprep.config import Checked, bounded, build_dataclass, field_error, read_toml
+from geomgrasp.config_schema import Checked, bounded, build_dataclass, field_error, read_toml
 from trainer.errors import TrainerError
 
 ACTION_DIM = 11

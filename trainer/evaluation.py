@@ -19,7 +19,7 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
-from geomprep.store import atomic_path
+from geomgrasp.files import atomic_path
 from trainer.config import EnvConfig, TrainConfig
 from trainer.errors import TrainerError
 from trainer.objects import resolve_names

@@ -25,8 +25,8 @@ import numpy as np
 import torch
 from mujoco import rollout
 
-from geomprep.rotations import quat_to_matrix, random_quats
-from geomprep.store import atomic_path
+from geomgrasp.files import atomic_path
+from geomgrasp.rotations import quat_to_matrix, random_quats
 from trainer.assets.scene import Scene, build_scene, slot_name, slot_qpos_addresses
 from trainer.config import EnvConfig, config_dict
 from trainer.errors import TrainerError

@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 import torch
 
-from geomprep.rotations import matrix_to_axis_angle, quat_to_matrix
+from geomgrasp.rotations import matrix_to_axis_angle, quat_to_matrix
 
 
 @dataclass

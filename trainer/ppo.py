@@ -33,7 +33,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 from tqdm import tqdm
 
-from geomprep.store import atomic_path
+from geomgrasp.files import atomic_path
 from trainer.config import (
     TrainConfig,
     check_device,

@@ -36,7 +36,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from geomprep.store import atomic_path
+from geomgrasp.files import atomic_path
 from trainer.config import ABSENT_MEANS
 from trainer.errors import TrainerError
 

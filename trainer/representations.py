@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import torch
 
-from geomprep.rotations import (
+from geomgrasp.rotations import (
     euler_xyz_to_matrix,
     matrix_to_euler_xyz,
     matrix_to_quat,

@@ -20,7 +20,7 @@ from typing import Any
 import torch
 from tensordict import TensorDict
 
-from geomprep.rotations import matrix_to_axis_angle, quat_to_matrix
+from geomgrasp.rotations import matrix_to_axis_angle, quat_to_matrix
 from trainer import constants as C
 from trainer.tasks import GraspTask
 

@@ -26,7 +26,7 @@ import mujoco
 import numpy as np
 import torch
 
-from geomprep.store import atomic_path
+from geomgrasp.files import atomic_path
 from trainer.assets.scene import slot_name
 from trainer.camera import CameraView, TrackingCamera
 from trainer.errors import TrainerError

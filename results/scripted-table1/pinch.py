@@ -58,7 +58,7 @@ import numpy as np
 import torch
 from causes import outcome_rows, write_rows  # beside this file
 
-from geomprep.rotations import quat_to_matrix
+from geomgrasp.rotations import quat_to_matrix
 from trainer import constants as C
 from trainer.config import load_env_config
 from trainer.scripted import narrowest_horizontal, run_scripted_grasp, steer, target_box

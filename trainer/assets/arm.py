@@ -13,7 +13,7 @@ import mujoco
 import numpy as np
 import torch
 
-from geomprep.rotations import axis_angle_to_quat
+from geomgrasp.rotations import axis_angle_to_quat
 from trainer import constants as C
 from trainer.config import PhysicsConfig, RobotConfig
 

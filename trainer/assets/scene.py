@@ -22,7 +22,7 @@ import mujoco
 import numpy as np
 import torch
 
-from geomprep.rotations import matrix_to_quat, quat_to_matrix
+from geomgrasp.rotations import matrix_to_quat, quat_to_matrix
 from trainer import constants as C
 from trainer.assets.arm import add_ur5e, dh_forward, flange_to_palm
 from trainer.assets.hand import add_sih_hand

@@ -36,7 +36,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.envs import EnvBase
 
-from geomprep.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix, rotation_6d
+from geomgrasp.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix, rotation_6d
 from trainer import constants as C
 from trainer.assets.scene import (
     Scene,
