@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
-from geomgrasp import config_schema
+from geomgrasp import config_schema, materials
 from geomgrasp.config_schema import bounded, toml_value  # noqa: F401 (geomprep's configs use them)
 from geomprep.errors import GeomprepError
 
@@ -100,17 +100,24 @@ class MJCFParams(Checked):
     does not override them. Changing one here changes the object the trainer trains with.
     """
 
-    friction: tuple[float, float, float] = bounded((1.0, 0.01, 0.0001), ge=0)
+    # Defaults: the object material of ``geomgrasp.materials`` (shared with the trainer).
+    friction: tuple[float, float, float] = bounded(materials.OBJECT.friction, ge=0)
     """Sliding, torsional, rolling friction of the collision hulls (MuJoCo ``geom/@friction``);
     the object's friction in the settle check and in the trainer."""
-    condim: int = bounded(4, choices=(1, 3, 4, 6))
+    condim: int = bounded(materials.OBJECT.condim, choices=(1, 3, 4, 6))
     """Contact dimensionality of the collision hulls (4: sliding plus torsional friction)."""
-    solref: tuple[float, float] = (0.01, 1.0)
+    solref: tuple[float, float] = materials.OBJECT.solref
     """Contact solver reference (time constant s, damping ratio) of the collision hulls."""
-    solimp: tuple[float, float, float, float, float] = (0.9, 0.95, 0.001, 0.5, 2.0)
+    solimp: tuple[float, float, float, float, float] = materials.OBJECT.solimp
     """Contact solver impedance (dmin, dmax, width m, midpoint, power) of the collision hulls."""
     settle_seconds: float = bounded(2.0, gt=0)
     """Simulated time for the settle check that validates the model."""
+
+    def material(self) -> materials.ContactMaterial:
+        """The object's contact material, as these fields set it."""
+        return materials.ContactMaterial(
+            friction=self.friction, condim=self.condim, solref=self.solref, solimp=self.solimp
+        )
 
 
 @dataclass(frozen=True)

@@ -10,10 +10,11 @@ Layout of ``processed/<name>/``::
 Mass and inertia are written explicitly (from the closed mesh, see ``mesh.mass_properties``),
 so they do not depend on how MuJoCo would integrate the hulls.
 
-Every collision hull carries the object's contact parameters, ``MJCFParams``' friction,
-condim, solref and solimp (all written out, none left to MuJoCo's defaults): this MJCF is
-their single source. The settle check simulates the model as written, and the trainer reads
-them from it and does not override them.
+Every collision hull carries the object's contact material (``geomgrasp.materials``, set by
+``MJCFParams``' friction, condim, solref and solimp; all written out, none left to MuJoCo's
+defaults): this MJCF is its single source. The settle check simulates the model as written (on
+a plane of MuJoCo's default contact), and the trainer reads the material from it and does not
+override it.
 """
 
 from __future__ import annotations
@@ -58,6 +59,7 @@ def model_xml(
     params: MJCFParams,
 ) -> str:
     """The MJCF text for an object whose files sit beside it (see the module docstring)."""
+    material = params.material()
     i = inertia
     full_inertia = _fmt([i[0, 0], i[1, 1], i[2, 2], i[0, 1], i[0, 2], i[1, 2]])
     assets = [f'    <mesh name="{name}_visual" file="visual.obj"/>']
@@ -69,9 +71,9 @@ def model_xml(
     assets += [
         f'    <mesh name="{name}_hull_{k:03d}" file="hull_{k:03d}.stl"/>' for k in range(n_hulls)
     ]
-    material = f' material="{name}_material"' if textured else ' rgba="0.7 0.7 0.7 1"'
+    look = f' material="{name}_material"' if textured else ' rgba="0.7 0.7 0.7 1"'
     geoms = [
-        f'      <geom name="{name}_visual" type="mesh" mesh="{name}_visual"{material} '
+        f'      <geom name="{name}_visual" type="mesh" mesh="{name}_visual"{look} '
         'contype="0" conaffinity="0" group="2" density="0"/>'
     ]
     geoms += [
@@ -85,9 +87,9 @@ def model_xml(
             '  <compiler angle="radian" meshdir="." texturedir="."/>',
             "  <default>",
             f'    <default class="{name}_collision">',
-            f'      <geom group="3" density="0" friction="{_fmt(params.friction)}" '
-            f'condim="{params.condim}" solref="{_fmt(params.solref)}" '
-            f'solimp="{_fmt(params.solimp)}" rgba="0.4 0.6 0.9 0.5"/>',
+            f'      <geom group="3" density="0" friction="{_fmt(material.friction)}" '
+            f'condim="{material.condim}" solref="{_fmt(material.solref)}" '
+            f'solimp="{_fmt(material.solimp)}" rgba="0.4 0.6 0.9 0.5"/>',
             "    </default>",
             "  </default>",
             "  <asset>",

@@ -236,7 +236,8 @@ def test_hold_action_keeps_the_commands(env: GraspTask) -> None:
     assert not torch.allclose(hold[:, 6:], hold[:1, 6:].expand(7, -1))  # the envs differ
     env.step(TensorDict({"action": hold}, batch_size=[7]))
     torch.testing.assert_close(env.state["target_rot"], before["target_rot"])
-    torch.testing.assert_close(env.state["ctrl"][:, env.hand_act], before["ctrl"][:, env.hand_act])
+    hand = env.robot.hand.actuators
+    torch.testing.assert_close(env.state["ctrl"][:, hand], before["ctrl"][:, hand])
     # The palm command stays unless the hand lags it by more than the leash.
     torch.testing.assert_close(env.state["target_pos"], before["target_pos"], atol=1e-5, rtol=0)
 

@@ -64,9 +64,9 @@ def test_untrained_policy_mean_action(builtin_data: Config) -> None:
     hand = td["action"][:, 6:]
     torch.testing.assert_close(hand, torch.tensor([[1.0, -1, -1, -1, -1]]).expand(4, 5),
                                atol=0.2, rtol=0)
-    targets = env.state["ctrl"][:, env.hand_act]
-    torch.testing.assert_close(targets, env.home_ctrl[env.hand_act].expand(4, 5), atol=0.2,
-                               rtol=0)
+    actuators = env.robot.hand.actuators
+    targets = env.state["ctrl"][:, actuators]
+    torch.testing.assert_close(targets, env.home_ctrl[actuators].expand(4, 5), atol=0.2, rtol=0)
     env.close()
 
 

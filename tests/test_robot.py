@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 import torch
 
-from trainer import constants as C
-from trainer.assets.arm import dh_forward
-from trainer.assets.scene import Scene, build_scene, ur5e_home_joints
-from trainer.config import load_env_config
+from trainer.assets.scene import Scene, build_scene
+from trainer.config import ACTION_DIM, load_env_config
 from trainer.kinematics import SiteKinematics, jacobian_transpose_step, pose_error
+from trainer.robots import ROBOTS, make_robot, sih
+from trainer.robots.ur5e import JOINTS as UR5E_JOINTS
+from trainer.robots.ur5e import UR5eRobot, dh_forward
 
 
 def _model(kind: str) -> mujoco.MjModel:
@@ -34,11 +35,11 @@ def floating() -> mujoco.MjModel:
 
 
 def test_hand_has_11_joints_5_actuators_and_fingertips(floating: mujoco.MjModel) -> None:
-    hand_joints = [floating.joint(n) for n in C.SIH_JOINTS]
+    hand_joints = [floating.joint(n) for n in sih.JOINTS]
     assert len(hand_joints) == 11
     assert floating.nu == 5
-    assert [floating.actuator(i).name for i in range(5)] == [a[0] for a in C.SIH_ACTUATORS]
-    for name in C.FINGERTIPS:
+    assert [floating.actuator(i).name for i in range(5)] == [a[0] for a in sih.ACTUATORS]
+    for name in sih.FINGERTIPS:
         assert floating.site(name).id >= 0
     # Index fingertip at q = 0, palm frame: (-0.0435, 0.0175, 0.230) per sih_hand.md.
     data = mujoco.MjData(floating)
@@ -52,13 +53,13 @@ def test_hand_has_11_joints_5_actuators_and_fingertips(floating: mujoco.MjModel)
 
 def test_couplings_hold_while_closing(floating: mujoco.MjModel) -> None:
     data = mujoco.MjData(floating)
-    for name, _, _, closed in C.SIH_ACTUATORS:
+    for name, _, _, closed in sih.ACTUATORS:
         data.ctrl[floating.actuator(name).id] = 0.6 * closed
     for _ in range(600):
         mujoco.mj_step(floating, data)
-    q = {n: data.qpos[floating.joint(n).qposadr[0]] for n in C.SIH_JOINTS}
+    q = {n: data.qpos[floating.joint(n).qposadr[0]] for n in sih.JOINTS}
     assert q["if_proximal"] < -0.5  # the fingers did close
-    for follower, leader in C.SIH_COUPLINGS:
+    for follower, leader in sih.COUPLINGS:
         assert abs(q[follower] - q[leader]) < 0.02, (follower, leader, q)
 
 
@@ -83,7 +84,7 @@ def test_torch_kinematics_match_mujoco(kind: str) -> None:
     model = _model(kind)
     data = mujoco.MjData(model)
     rng = np.random.default_rng(1)
-    sites = ["palm", *C.FINGERTIPS]
+    sites = ["palm", *sih.FINGERTIPS]
     kinematics = SiteKinematics(model, sites)
     for _ in range(3):
         data.qpos[:] = model.qpos0 + rng.normal(0.0, 0.4, model.nq)
@@ -94,7 +95,7 @@ def test_torch_kinematics_match_mujoco(kind: str) -> None:
         # float32 against float64: far below the 1 mm requirement
         assert np.abs(poses.site_pos[0].numpy() - expected).max() < 1e-5
     if kind == "ur5e":
-        jac = kinematics.jacobian(poses, "palm", C.UR5E_JOINTS)[0].numpy()
+        jac = kinematics.jacobian(poses, "palm", UR5E_JOINTS)[0].numpy()
         jp, jr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
         mujoco.mj_jacSite(model, data, jp, jr, model.site("palm").id)
         np.testing.assert_allclose(jac, np.vstack([jp, jr])[:, :6], atol=1e-5)
@@ -104,7 +105,7 @@ def test_jacobian_transpose_moves_hand_toward_command(ur5e: mujoco.MjModel) -> N
     cfg = load_env_config()
     kinematics = SiteKinematics(ur5e, ["palm"])
     qpos = torch.as_tensor(ur5e.qpos0, dtype=torch.float32)[None].repeat(4, 1)
-    qpos[:, :6] = torch.as_tensor(ur5e_home_joints(cfg), dtype=torch.float32)
+    qpos[:, :6] = torch.as_tensor(UR5eRobot(cfg.robot).home_joints(), dtype=torch.float32)
     start = kinematics.forward(qpos)
     offsets = torch.tensor(
         [[0.03, 0.0, 0.0], [0.0, -0.03, 0.0], [0.0, 0.0, 0.03], [0.02, 0.02, -0.02]]
@@ -115,7 +116,7 @@ def test_jacobian_transpose_moves_hand_toward_command(ur5e: mujoco.MjModel) -> N
     arm = torch.arange(6)
     moved = qpos.clone()
     moved[:, :6] = jacobian_transpose_step(
-        kinematics, qpos, arm, C.UR5E_JOINTS, "palm", target_pos, target_rot, 1
+        kinematics, qpos, arm, UR5E_JOINTS, "palm", target_pos, target_rot, 1
     )
     after = kinematics.forward(moved)
     err1 = pose_error(target_pos, target_rot, after.site_pos[:, 0], after.site_rot[:, 0])
@@ -127,9 +128,65 @@ def test_jacobian_transpose_moves_hand_toward_command(ur5e: mujoco.MjModel) -> N
     # Repeated steps (as across control periods) converge to the command.
     for _ in range(20):
         moved[:, :6] = jacobian_transpose_step(
-            kinematics, moved, arm, C.UR5E_JOINTS, "palm", target_pos, target_rot, 5
+            kinematics, moved, arm, UR5E_JOINTS, "palm", target_pos, target_rot, 5
         )
     final = kinematics.forward(moved)
     err = pose_error(target_pos, target_rot, final.site_pos[:, 0], final.site_rot[:, 0])
     assert err[:, :3].norm(dim=1).max() < 2e-3
     assert err[:, 3:].norm(dim=1).max() < 0.02
+
+
+@pytest.mark.parametrize("kind", ["ur5e", "floating"])
+def test_robot_home_puts_the_palm_at_its_home_pose(kind: str) -> None:
+    """Each robot of the registry: its home state puts the palm keypoint at ``home_pose``, palm
+    down, the hand open with the thumb opposed; its action has ``ACTION_DIM`` values."""
+    cfg = load_env_config()
+    robot = make_robot(dataclasses.replace(cfg.robot, kind=kind))
+    assert isinstance(robot, ROBOTS[kind]) and robot.action_dim == ACTION_DIM
+    model = _model(kind)
+    robot.index(model, torch.device("cpu"))
+    home = robot.home(model)
+    poses = SiteKinematics(model, robot.sites).forward(home.qpos[None])
+    keypoint, rot = robot.home_pose()
+    np.testing.assert_allclose(poses.site_pos[0, 0].numpy(), keypoint, atol=1e-4)
+    np.testing.assert_allclose(poses.site_rot[0, 0].numpy(), rot, atol=1e-4)
+    torch.testing.assert_close(home.keypoint, torch.as_tensor(keypoint, dtype=torch.float32))
+    hand = home.ctrl[robot.hand.actuators]
+    assert hand[0] == robot.hand.closed[0] and (hand[1:] == robot.hand.open[1:]).all()
+    assert home.qpos[robot.hand_qpos[0]] == robot.hand.closed[0]
+
+
+@pytest.mark.parametrize("kind", ["ur5e", "floating"])
+def test_robot_commands_and_hold_action(kind: str) -> None:
+    """An action moves the commanded palm by ``pos_step`` per unit, sets the hand's targets
+    between open (-1) and closed (+1), and ``hold_action`` gives back the action that keeps
+    them; only the floating hand has mocap targets."""
+    cfg = load_env_config()
+    robot = make_robot(dataclasses.replace(cfg.robot, kind=kind))
+    model = _model(kind)
+    robot.index(model, torch.device("cpu"))
+    home = robot.home(model)
+    E = 3
+    action = torch.zeros(E, robot.action_dim)
+    action[:, 0] = torch.tensor([1.0, -1.0, 0.5])
+    action[:, 6:] = torch.linspace(-1.0, 1.0, 5)
+    palm = home.keypoint.expand(E, 3)
+    target_pos, target_rot, ctrl = robot.commands(
+        action, palm, palm, home.rot.expand(E, 3, 3), home.ctrl.expand(E, -1),
+        home.qpos.expand(E, -1),
+    )
+    step = torch.tensor([1.0, -1.0, 0.5]) * cfg.robot.pos_step
+    torch.testing.assert_close(target_pos[:, 0] - palm[:, 0], step)
+    torch.testing.assert_close(target_rot, home.rot.expand(E, 3, 3))
+    hand = ctrl[:, robot.hand.actuators]
+    torch.testing.assert_close(hand[:, 0], robot.hand.open[0].expand(E))
+    torch.testing.assert_close(hand[:, -1], robot.hand.closed[-1].expand(E))
+    torch.testing.assert_close(robot.hold_action(ctrl)[:, 6:], action[:, 6:])
+    assert not robot.hold_action(ctrl)[:, :6].any()
+    mocap_pos, mocap_quat = robot.mocap(target_pos, target_rot)
+    if kind == "floating":
+        assert mocap_pos.shape == (E, 1, 3) and mocap_quat.shape == (E, 1, 4)
+        torch.testing.assert_close(mocap_pos[:, 0], target_pos)
+    else:
+        assert mocap_pos is None and mocap_quat is None
+        assert not torch.equal(ctrl[:, robot.arm_actuators], home.ctrl[robot.arm_actuators])

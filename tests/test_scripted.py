@@ -67,7 +67,7 @@ def test_scripted_grasp_fails_without_closing(builtin_data: Config) -> None:
     cfg = load_env_config(num_envs=4, objects="builtin_cylinder", data_dir=builtin_data.data_dir)
     env = make_env(dataclasses.replace(cfg, representation="com"), seed=3)
     script = ScriptedGrasp(thumb_closed=ScriptedGrasp().thumb_open)
-    env.hand_closed = env.hand_open.clone()  # "closing" commands the open hand
+    env.robot.hand.closed = env.robot.hand.open.clone()  # "closing" commands the open hand
     lifted = run_scripted_grasp(env, script)
     env.close()
     assert not lifted.any()

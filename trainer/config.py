@@ -23,7 +23,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
+from geomgrasp import materials
 from geomgrasp.config_schema import Checked, bounded, build_dataclass, field_error, read_toml
+from geomgrasp.materials import ContactMaterial
 from trainer.errors import TrainerError
 
 ACTION_DIM = 11
@@ -74,14 +76,33 @@ class PhysicsConfig(_Checked):
     continue bit for bit, and the backend keeps one MjData per env."""
     table_size: tuple[float, float, float] = bounded((0.4, 0.4, 0.02), gt=0)
     """Half-sizes of the table top (m); its top surface is at z = 0."""
-    table_friction: tuple[float, float, float] = bounded((0.8, 0.005, 0.0001), ge=0)
-    finger_friction: tuple[float, float, float] = bounded((1.0, 0.01, 0.0001), ge=0)
-    condim: int = bounded(4, choices=(1, 3, 4, 6))
-    solref: tuple[float, float] = (0.01, 1.0)
-    solimp: tuple[float, float, float, float, float] = (0.9, 0.95, 0.001, 0.5, 2.0)
-    """Contact softness of the robot's geoms. The objects' contact parameters (friction, condim,
+    # The contact materials (``materials``; defaults: ``geomgrasp.materials.DEFAULTS``).
+    table_friction: tuple[float, float, float] = bounded(materials.TABLE.friction, ge=0)
+    """Sliding, torsional, rolling friction of the table, the bin and the arm."""
+    finger_friction: tuple[float, float, float] = bounded(materials.HAND.friction, ge=0)
+    """Friction of the hand."""
+    condim: int = bounded(materials.HAND.condim, choices=(1, 3, 4, 6))
+    """Contact dimensionality of the floor, table, bin, arm and hand."""
+    solref: tuple[float, float] = materials.HAND.solref
+    solimp: tuple[float, float, float, float, float] = materials.HAND.solimp
+    """Contact softness of the hand's geoms. The objects' contact parameters (friction, condim,
     solref, solimp) are geomprep's (``[mjcf]`` in its config), written into each object's MJCF and
     used as they are, so geomprep's settle check and training see the same contacts."""
+
+    def materials(self) -> dict[str, ContactMaterial]:
+        """The contact material of each group of the scene's fixtures and robot, from these
+        fields (the objects' material is in their MJCF)."""
+        fixture = ContactMaterial(friction=self.table_friction, condim=self.condim)
+        return {
+            "floor": dataclasses.replace(materials.DEFAULTS["floor"], condim=self.condim),
+            "table": fixture,
+            "bin": fixture,
+            "arm": fixture,
+            "hand": ContactMaterial(
+                friction=self.finger_friction, condim=self.condim, solref=self.solref,
+                solimp=self.solimp,
+            ),
+        }
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ import torch
 from tensordict import TensorDict
 
 from geomgrasp.rotations import matrix_to_axis_angle, quat_to_matrix
-from trainer import constants as C
+from trainer.robots import sih
 from trainer.tasks import GraspTask
 
 
@@ -124,7 +124,7 @@ def scripted_action(env: GraspTask, script: ScriptedGrasp, step: int, plan: dict
     frame computed at step 0."""
     if step == 0:
         center, half_height, palm_rot = grasp_frame(env)
-        keypoint = torch.tensor(C.SIH_PALM_KEYPOINT, device=center.device)
+        keypoint = torch.tensor(sih.PALM_KEYPOINT, device=center.device)
         grasp_local = torch.stack(
             [
                 torch.full_like(half_height, script.lateral),
@@ -138,10 +138,10 @@ def scripted_action(env: GraspTask, script: ScriptedGrasp, step: int, plan: dict
         plan.update(goal=goal, rot=palm_rot)
     goal = plan["goal"].clone()
     closed = torch.ones(5, device=goal.device)
-    closed[1] = 2 * script.thumb_closed / C.SIH_THUMB_FLEX_RANGE[1] - 1
+    closed[1] = 2 * script.thumb_closed / sih.THUMB_FLEX_RANGE[1] - 1
     hand = -torch.ones(env.num_envs, 5, device=goal.device)
     hand[:, 0] = 1.0  # thumb opposed throughout
-    hand[:, 1] = 2 * script.thumb_open / C.SIH_THUMB_FLEX_RANGE[1] - 1
+    hand[:, 1] = 2 * script.thumb_open / sih.THUMB_FLEX_RANGE[1] - 1
     t = step
     if t < script.approach_steps:
         goal[:, 2] += script.hover

@@ -1,6 +1,7 @@
-"""Scenes: the robot (UR5e + SIH hand, or the hand on a floating base), fixtures (the table;
-for bin picking a bin of a floor and four walls) and K object *slots*, assembled with
-``mujoco.MjSpec``.
+"""Scenes: fixtures (the table; for bin picking a bin of a floor and four walls), K object
+*slots* and the robot (``trainer.robots``, the one ``RobotConfig.kind`` names), assembled with
+``mujoco.MjSpec``, with every part's contact material applied by group at the end
+(``geomgrasp.materials``; the values: ``PhysicsConfig.materials``).
 
 A ``Scene`` says what is fixed; an *assignment* (K object MJCF files) says which object fills
 each slot. Slot k is the body ``slot{k}`` with one free joint: code finds objects by slot name
@@ -13,28 +14,22 @@ World frame: the table top is the plane z = 0 around the origin; the UR5e base s
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
 import numpy as np
-import torch
 
-from geomgrasp.rotations import matrix_to_quat, quat_to_matrix
-from trainer import constants as C
-from trainer.assets.arm import add_ur5e, dh_forward, flange_to_palm
-from trainer.assets.hand import add_sih_hand
+from geomgrasp import materials
+from trainer.assets.collision import BIT_ARM, BIT_HAND, BIT_OBJECT, BIT_STATIC
 from trainer.config import EnvConfig, PhysicsConfig
 from trainer.errors import TrainerError
+from trainer.robots import make_robot
+from trainer.robots.base import matrix_to_quat_np
 
 FLOOR_Z = -0.75
 FIXTURES = ("table", "bin")
-# Palm-down pose of the hand at reset, as in the authors' home configuration: palmar side
-# (+y_palm) faces the table, fingers (+z_palm) point away from the robot (-y), thumb toward -x.
-# Columns are the palm axes in the world frame.
-PALM_DOWN = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])
 
 
 @dataclass(frozen=True)
@@ -75,16 +70,6 @@ def slot_qvel_addresses(model: mujoco.MjModel, num_slots: int) -> np.ndarray:
     return model.jnt_dofadr[_slot_joints(model, num_slots)].astype(np.int64)
 
 
-def _matrix_to_quat(rot: np.ndarray) -> np.ndarray:
-    """(3, 3) -> (4,) (w, x, y, z), through the project's rotation module."""
-    return matrix_to_quat(torch.as_tensor(rot, dtype=torch.float64)).numpy()
-
-
-def _quat_to_matrix(quat: np.ndarray) -> np.ndarray:
-    """(4,) (w, x, y, z) -> (3, 3), through the project's rotation module."""
-    return quat_to_matrix(torch.as_tensor(quat, dtype=torch.float64)).numpy()
-
-
 def _options(spec: mujoco.MjSpec, cfg: EnvConfig) -> None:
     spec.compiler.degree = False  # every angle in this package is in radians
     spec.option.timestep = cfg.timestep
@@ -115,18 +100,18 @@ def _add_table(spec: mujoco.MjSpec, physics: PhysicsConfig) -> None:
     table.size = physics.table_size
     table.pos = (0.0, 0.0, -physics.table_size[2])
     table.rgba = (0.75, 0.65, 0.5, 1.0)
-    table.friction = physics.table_friction
+    materials.tag(spec, floor, "floor")
+    materials.tag(spec, table, "table")
     for geom in (floor, table):
-        geom.contype = C.BIT_STATIC
-        geom.conaffinity = C.BIT_OBJECT | C.BIT_ARM | C.BIT_HAND
-        geom.condim = physics.condim
+        geom.contype = BIT_STATIC
+        geom.conaffinity = BIT_OBJECT | BIT_ARM | BIT_HAND
     camera = world.add_camera()
     camera.name = "front"
     camera.pos = (0.75, -0.75, 0.55)
     x_axis = np.array([0.7071, 0.7071, 0.0])
     y_axis = np.array([-0.28, 0.28, 0.92])
     y_axis /= np.linalg.norm(y_axis)
-    camera.quat = _matrix_to_quat(np.stack([x_axis, y_axis, np.cross(x_axis, y_axis)], axis=1))
+    camera.quat = matrix_to_quat_np(np.stack([x_axis, y_axis, np.cross(x_axis, y_axis)], axis=1))
 
 
 def _add_bin(spec: mujoco.MjSpec, cfg: EnvConfig) -> None:
@@ -152,11 +137,10 @@ def _add_bin(spec: mujoco.MjSpec, cfg: EnvConfig) -> None:
         geom.pos = pos
         geom.size = size
         geom.rgba = (0.45, 0.55, 0.7, 1.0)
-        geom.friction = cfg.physics.table_friction
-        geom.condim = cfg.physics.condim
+        materials.tag(spec, geom, "bin")
         collides = name != "bin_floor"
-        geom.contype = C.BIT_STATIC if collides else 0
-        geom.conaffinity = (C.BIT_OBJECT | C.BIT_ARM | C.BIT_HAND) if collides else 0
+        geom.contype = BIT_STATIC if collides else 0
+        geom.conaffinity = (BIT_OBJECT | BIT_ARM | BIT_HAND) if collides else 0
 
 
 def strip_visuals(child: mujoco.MjSpec) -> None:
@@ -198,53 +182,9 @@ def add_object(spec: mujoco.MjSpec, xml_path: Path, slot: int, visual: bool = Tr
     for geom in body.geoms:
         if geom.contype == 0 and geom.conaffinity == 0:
             continue  # the visual mesh
-        geom.contype = C.BIT_OBJECT
-        geom.conaffinity = C.BIT_STATIC | C.BIT_OBJECT | C.BIT_ARM | C.BIT_HAND
+        geom.contype = BIT_OBJECT
+        geom.conaffinity = BIT_STATIC | BIT_OBJECT | BIT_ARM | BIT_HAND
     return body.name
-
-
-def home_hand_pose(cfg: EnvConfig) -> tuple[np.ndarray, np.ndarray]:
-    """The reset pose of the hand: the palm keypoint ``home_hand_height`` above the table
-    centre, palm down. Returns (keypoint position (3,) m, palm rotation (3, 3)) in the world."""
-    return np.array([0.0, 0.0, cfg.robot.home_hand_height]), PALM_DOWN
-
-
-def ur5e_home_joints(cfg: EnvConfig, iterations: int = 300) -> np.ndarray:
-    """Arm joints that put the hand at ``home_hand_pose`` (damped least squares on the DH model,
-    started from the authors' home configuration so the elbow stays up)."""
-    keypoint, target_rot = home_hand_pose(cfg)
-    target_pos = keypoint - target_rot @ np.array(C.SIH_PALM_KEYPOINT)
-    offset_pos, offset_quat = flange_to_palm()
-    offset_rot = _quat_to_matrix(offset_quat)
-    base = np.array(cfg.robot.base_pos)
-
-    def palm(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        tool = dh_forward(q)
-        return base + tool[:3, :3] @ offset_pos + tool[:3, 3], tool[:3, :3] @ offset_rot
-
-    def error(q: np.ndarray) -> np.ndarray:
-        pos, rot = palm(q)
-        rot_err = np.empty(3)
-        mujoco.mju_subQuat(rot_err, _matrix_to_quat(target_rot), _matrix_to_quat(rot))
-        return np.concatenate([target_pos - pos, rot_err])
-
-    q = np.array(C.UR5E_HOME, dtype=np.float64)
-    for _ in range(iterations):
-        e = error(q)
-        if np.linalg.norm(e) < 1e-9:
-            break
-        jac = np.empty((6, 6))
-        for j in range(6):
-            dq = np.zeros(6)
-            dq[j] = 1e-6
-            jac[:, j] = (e - error(q + dq)) / 1e-6
-        q = q + jac.T @ np.linalg.solve(jac @ jac.T + 1e-6 * np.eye(6), e)
-    if np.linalg.norm(error(q)) > 1e-5:
-        raise TrainerError(
-            f"the UR5e cannot reach the home hand pose from base {cfg.robot.base_pos}: "
-            "move [robot] base_pos or home_hand_height"
-        )
-    return (q + math.pi) % (2 * math.pi) - math.pi
 
 
 def build_scene(
@@ -256,9 +196,8 @@ def build_scene(
     initial states). ``visual=False``: without the objects' visual meshes and textures (the
     models that only step; same bodies, joints, sites and collision geoms).
 
-    Robot ``ur5e``: the arm with the hand on its flange, 6 arm position actuators first, then the
-    5 hand actuators. Robot ``floating``: the hand on a free body ``hand_base`` (at the palm
-    keypoint) welded to the mocap body ``hand_target``; only the 5 hand actuators.
+    The robot is ``make_robot(cfg.robot)``'s part (``trainer.robots``). The contact materials
+    of the fixtures and the robot are ``cfg.physics.materials()``; the objects keep geomprep's.
     """
     if len(object_xmls) != scene.num_slots:
         raise ValueError(f"the scene has {scene.num_slots} slots, got {len(object_xmls)} objects")
@@ -269,51 +208,8 @@ def build_scene(
     if "bin" in scene.fixtures:
         _add_bin(spec, cfg)
     if robot:
-        _add_robot(spec, cfg)
+        make_robot(cfg.robot).build(spec)
     for k, xml in enumerate(object_xmls):
         add_object(spec, Path(xml), k, visual)
+    materials.apply_materials(spec, cfg.physics.materials())
     return spec
-
-
-def _add_robot(spec: mujoco.MjSpec, cfg: EnvConfig) -> None:
-    keypoint, palm_rot = home_hand_pose(cfg)
-    if cfg.robot.kind == "ur5e":
-        last_link = add_ur5e(spec, cfg.physics, cfg.robot)
-        offset_pos, offset_quat = flange_to_palm()
-        flange_pos = np.array([C.UR5E_DH_A[5], 0.0, C.UR5E_DH_D[5]])
-        add_sih_hand(spec, last_link, flange_pos + offset_pos, offset_quat, cfg.physics, cfg.robot)
-        for link in spec.bodies:
-            if link.name.endswith("_link"):
-                for geom in link.geoms:
-                    geom.condim = cfg.physics.condim
-    else:
-        quat = _matrix_to_quat(palm_rot)
-        target = spec.worldbody.add_body()
-        target.name = "hand_target"
-        target.mocap = True
-        target.pos = keypoint
-        target.quat = quat
-        base = spec.worldbody.add_body()
-        base.name = "hand_base"
-        base.pos = keypoint
-        base.quat = quat
-        base.gravcomp = 1.0
-        base.add_freejoint().name = "hand_free"
-        inertial_geom = base.add_geom()
-        inertial_geom.type = mujoco.mjtGeom.mjGEOM_SPHERE
-        inertial_geom.size = (0.01, 0, 0)
-        inertial_geom.mass = 0.5
-        inertial_geom.contype = 0
-        inertial_geom.conaffinity = 0
-        inertial_geom.group = 4
-        add_sih_hand(
-            spec, base, -np.array(C.SIH_PALM_KEYPOINT), (1.0, 0.0, 0.0, 0.0), cfg.physics,
-            cfg.robot,
-        )
-        weld = spec.add_equality()
-        weld.name = "hand_weld"
-        weld.type = mujoco.mjtEq.mjEQ_WELD
-        weld.objtype = mujoco.mjtObj.mjOBJ_BODY
-        weld.name1 = "hand_base"
-        weld.name2 = "hand_target"
-        weld.solref = cfg.robot.weld_solref

@@ -1,12 +1,12 @@
-"""The robot base of every task: UR5e + SIH hand (or the floating hand) grasping a *target*
-object in a scene of object slots, as a batched TorchRL environment.
+"""The base of every task: a robot (``trainer.robots``: UR5e + SIH hand, or the floating hand)
+grasping a *target* object in a scene of object slots, as a batched TorchRL environment.
 
 A task module (``lift.py``, ``bin.py``) subclasses ``GraspTask`` and decides the scene (its
 fixtures and slots), which objects fill the slots in each env (``_layouts``), which slot is the
 target of an episode (``_choose_targets``) and what else the policy sees (``_get_obs``). The
 base owns everything the tasks share: the backend (``trainer.sim.make_backend``), the settled
-initial states, the action → Jacobian-transpose arm commands, the paper's reward and success
-applied to the target, resets, and checkpoints.
+initial states, the robot (``self.robot``, which turns actions into commands), the paper's
+reward and success applied to the target, resets, and checkpoints.
 
 Reading order: ``__init__``, ``_reset`` / ``_reset_envs``, ``_step``, ``_task_outputs_eager``
 and the task hooks ``_get_obs``, ``_get_reward``, ``_get_termination``.
@@ -37,20 +37,14 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.envs import EnvBase
 
 from geomgrasp.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix, rotation_6d
-from trainer import constants as C
-from trainer.assets.scene import (
-    Scene,
-    home_hand_pose,
-    slot_qpos_addresses,
-    slot_qvel_addresses,
-    ur5e_home_joints,
-)
+from trainer.assets.scene import Scene, slot_qpos_addresses, slot_qvel_addresses
 from trainer.config import EnvConfig
 from trainer.errors import TrainerError
 from trainer.init_states import load_or_build_bank
-from trainer.kinematics import SiteKinematics, jacobian_transpose_step
+from trainer.kinematics import SiteKinematics
 from trainer.objects import ObjectSet, load_objects, resolve_names
 from trainer.representations import object_representation
+from trainer.robots import Robot, make_robot
 from trainer.sim import make_backend
 from trainer.tasks.spec import observation_spec
 
@@ -84,7 +78,7 @@ def _compiled_or_eager(function):  # noqa: ANN001, ANN202
 
 
 class GraspTask(EnvBase):
-    """Grasp the target object of every env with the UR5e + SIH hand (or the floating hand)."""
+    """Grasp the target object of every env with the robot ``cfg.robot.kind`` names."""
 
     name: ClassVar[str] = ""
 
@@ -127,10 +121,14 @@ class GraspTask(EnvBase):
         address = torch.as_tensor(slot_qvel_addresses(self.model, K), device=self.device)
         self.slot_linvel = address[:, None] + torch.arange(3, device=self.device)  # (K, 3)
 
-        self._index_model(self.model)
-        self.kinematics = SiteKinematics(self.model, ["palm", *C.FINGERTIPS], self.device)
-        self.palm_kinematics = SiteKinematics(self.model, ["palm"], self.device)
-        self._home_state()
+        self.robot: Robot = make_robot(cfg.robot)
+        self.robot.index(self.model, self.device)
+        self.hand_qpos = self.robot.hand_qpos  # (11,) qpos addresses of the hand's joints
+        self.kinematics = SiteKinematics(self.model, self.robot.sites, self.device)
+        # The robot's state at reset: qpos (nq,), ctrl (nu,), commanded palm pose (3,), (3, 3).
+        self.home_qpos, self.home_ctrl, self.home_keypoint, self.home_rot = self.robot.home(
+            self.model
+        )
 
         self._rng = torch.Generator(device=self.device)
         self._rng.manual_seed(seed)
@@ -154,7 +152,7 @@ class GraspTask(EnvBase):
         self._pending_restore: dict | None = None
         self._stagger_next_reset = False
         self._task_outputs = self._task_outputs_eager
-        self._commands = self._commands_eager
+        self._commands = self.robot.commands
         if cfg.compile:
             # Fuses the hundreds of small per-step tensor ops into a few C++ loops (graphs are
             # compiled on first use, then cached on disk by torch). Every env instance (each
@@ -162,7 +160,7 @@ class GraspTask(EnvBase):
             # past torch's default limit of 8 it would silently fall back to eager.
             torch._dynamo.config.recompile_limit = max(torch._dynamo.config.recompile_limit, 64)
             self._task_outputs = _compiled_or_eager(self._task_outputs_eager)
-            self._commands = _compiled_or_eager(self._commands_eager)
+            self._commands = _compiled_or_eager(self.robot.commands)
         spec = observation_spec(cfg, E, self.device)
         self.observation_spec = spec["observation"]
         self.action_spec = spec["action"]
@@ -189,45 +187,6 @@ class GraspTask(EnvBase):
         raise NotImplementedError
 
     # --- setup ------------------------------------------------------------------------------
-    def _index_model(self, model) -> None:  # noqa: ANN001
-        """qpos / actuator indices of the robot (the same in every env's model)."""
-        joint = lambda name: int(model.joint(name).qposadr[0])  # noqa: E731
-        self.hand_qpos = torch.tensor([joint(n) for n in C.SIH_JOINTS], device=self.device)
-        self.hand_act = torch.tensor(
-            [model.actuator(a[0]).id for a in C.SIH_ACTUATORS], device=self.device
-        )
-        self.hand_open = torch.tensor([a[2] for a in C.SIH_ACTUATORS], device=self.device)
-        self.hand_closed = torch.tensor([a[3] for a in C.SIH_ACTUATORS], device=self.device)
-        self.floating = self.cfg.robot.kind == "floating"
-        if self.floating:
-            self.base_qpos = joint("hand_free")
-        else:
-            self.arm_qpos = torch.tensor([joint(n) for n in C.UR5E_JOINTS], device=self.device)
-            self.arm_act = torch.tensor(
-                [model.actuator(f"a_{n}").id for n in C.UR5E_JOINTS], device=self.device
-            )
-
-    def _home_state(self) -> None:
-        """Robot qpos and ctrl at reset: hand open, thumb opposed, palm down above the table."""
-        qpos = torch.as_tensor(self.model.qpos0, dtype=torch.float32, device=self.device).clone()
-        ctrl = torch.zeros(self.model.nu, device=self.device)
-        hand = self.hand_open.clone()
-        hand[0] = self.hand_closed[0]  # thumb rotation: opposed
-        ctrl[self.hand_act] = hand
-        qpos[self.hand_qpos[0]] = hand[0]
-        keypoint, palm_rot = home_hand_pose(self.cfg)
-        self.home_keypoint = torch.as_tensor(keypoint, dtype=torch.float32, device=self.device)
-        self.home_rot = torch.as_tensor(palm_rot, dtype=torch.float32, device=self.device)
-        if self.floating:
-            qpos[self.base_qpos : self.base_qpos + 3] = self.home_keypoint
-            qpos[self.base_qpos + 3 : self.base_qpos + 7] = matrix_to_quat(self.home_rot)
-        else:
-            arm = torch.as_tensor(ur5e_home_joints(self.cfg), dtype=torch.float32)
-            qpos[self.arm_qpos] = arm.to(self.device)
-            ctrl[self.arm_act] = arm.to(self.device)
-        self.home_qpos = qpos
-        self.home_ctrl = ctrl
-
     def set_lift_target(self, h_bar: float | list[float]) -> None:
         """Lift height (m) that earns the success bonus and ends an episode: ``cfg.reward.h_bar``
         unless a training curriculum lowers it; one value for every object, or one per object
@@ -326,7 +285,7 @@ class GraspTask(EnvBase):
             device=self.device,
         )
         self.state[ids] = fresh
-        mocap = self._mocap(n, fresh["target_pos"], fresh["target_rot"])
+        mocap = self.robot.mocap(fresh["target_pos"], fresh["target_rot"])
         self.backend.set_state(
             ids, qpos, torch.zeros(n, self.backend.nv, device=self.device), fresh["ctrl"], *mocap
         )
@@ -360,16 +319,10 @@ class GraspTask(EnvBase):
         self.state.update_(state.to(self.device))
         self._rng.set_state(snapshot["rng"])
 
-    def _mocap(
-        self, n: int, pos: torch.Tensor, rot: torch.Tensor
-    ) -> tuple[torch.Tensor | None, torch.Tensor | None]:
-        if not self.floating:
-            return None, None
-        return pos.reshape(n, 1, 3), matrix_to_quat(rot).reshape(n, 1, 4)
-
     def mocap_targets(self) -> tuple[torch.Tensor | None, torch.Tensor | None]:
-        """The floating hand's current mocap target: (E, 1, 3) and (E, 1, 4), or Nones."""
-        return self._mocap(self.num_envs, self.state["target_pos"], self.state["target_rot"])
+        """The robot's current mocap targets (the floating hand's: (E, 1, 3) and (E, 1, 4)), or
+        Nones."""
+        return self.robot.mocap(self.state["target_pos"], self.state["target_rot"])
 
     def hold(self) -> None:
         """One control period holding the current commands, with nothing else updated (videos
@@ -380,11 +333,7 @@ class GraspTask(EnvBase):
         """(E, action_dim) the action that keeps the current commands: no palm motion and the
         hand's current actuator targets (``trainer play`` holds a finished episode's grasp with
         it while the other episodes go on, instead of letting the policy act past its end)."""
-        hand = self.state["ctrl"][:, self.hand_act]
-        span = self.hand_closed - self.hand_open
-        action = torch.zeros(self.num_envs, 6 + span.numel(), device=self.device)
-        action[:, 6:] = 2.0 * (hand - self.hand_open) / span - 1.0
-        return action
+        return self.robot.hold_action(self.state["ctrl"])
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get("action").clamp(-1.0, 1.0)
@@ -393,42 +342,9 @@ class GraspTask(EnvBase):
             action, s["palm_pos"], s["target_pos"], s["target_rot"], s["ctrl"], self.backend.qpos
         )
         s["target_pos"], s["target_rot"], s["ctrl"] = target_pos, target_rot, ctrl
-        self.backend.step(ctrl, *self._mocap(self.num_envs, target_pos, target_rot))
+        self.backend.step(ctrl, *self.robot.mocap(target_pos, target_rot))
         s["step_count"] += 1
         return self._observe(reset=False)
-
-    # --- the robot's commands ----------------------------------------------------------------
-    def _commands_eager(
-        self,
-        action: torch.Tensor,
-        palm_pos: torch.Tensor,
-        target_pos: torch.Tensor,
-        target_rot: torch.Tensor,
-        ctrl: torch.Tensor,
-        qpos: torch.Tensor,
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """The new commanded palm pose (E, 3), (E, 3, 3) and actuator targets (E, nu), a pure
-        tensor function (``torch.compile`` fuses it when ``cfg.compile``).
-
-        palm_pos: measured at the last observation (the current state); qpos (E, nq)."""
-        robot = self.cfg.robot
-        # The command accumulates, so small tracking errors do not drift; a leash keeps it near
-        # the measured hand when the hand is blocked (by the table or the object).
-        lag = (target_pos - palm_pos).clamp(-robot.leash, robot.leash)
-        target_pos = palm_pos + lag + action[:, :3] * robot.pos_step
-        target_rot = axis_angle_to_matrix(action[:, 3:6] * robot.rot_step) @ target_rot
-        hand = self.hand_open + 0.5 * (action[:, 6:] + 1.0) * (self.hand_closed - self.hand_open)
-        ctrl = ctrl.clone()
-        ctrl[:, self.hand_act] = hand
-        if not self.floating:
-            # UR5e joint targets by the Jacobian transpose, refining the previous targets.
-            qpos = qpos.clone()
-            qpos[:, self.arm_qpos] = ctrl[:, self.arm_act]
-            ctrl[:, self.arm_act] = jacobian_transpose_step(
-                self.palm_kinematics, qpos, self.arm_qpos, C.UR5E_JOINTS, "palm",
-                target_pos, target_rot, robot.jt_iterations, robot.jt_rotation_scale,
-            )
-        return target_pos, target_rot, ctrl
 
     # --- observation, reward, termination ----------------------------------------------------
     def _observe(self, reset: bool) -> TensorDictBase:
