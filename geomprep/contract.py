@@ -5,7 +5,9 @@ geomprep writes ``data/processed/<name>.h5`` (``pack``: one group per stage, see
 ``STAGE_GROUPS``) and the MuJoCo model directory ``data/processed/<name>/``; the trainer reads
 them through this module alone. It imports the standard library, numpy, h5py and geomprep's
 record and raw-store modules, never the mesh stack (trimesh, CoACD, Open3D): reading a processed
-object must not load the libraries that made it. ``tests/test_contract.py`` checks this.
+object must not load the libraries that made it (``tests/test_contract.py`` checks this), and
+h5py is imported by the readers only (``geomprep.config`` uses ``DataDirs``, and ``geomprep``'s
+command line starts without h5py).
 
 The one exception is ``resolve_objects`` on a data directory that lacks the sources of built-in
 objects it names: it writes them on first use, through ``geomprep.pipeline`` (imported only then).
@@ -21,7 +23,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import h5py
 import numpy as np
 
 from geomprep import builtin, cache, rawstore, ycb
@@ -86,6 +87,9 @@ class DataDirs:
 
     data_dir: Path = Path("data")
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "data_dir", Path(self.data_dir))  # a str given is a Path
+
     @property
     def raw_dir(self) -> Path:
         """Imported sources, ``raw/<name>/`` (see ``geomprep.rawstore``)."""
@@ -143,6 +147,8 @@ def read_object(dirs: DataDirs, name: str) -> ProcessedObject:
     """Read ``processed/<name>.h5`` (without its SDF grid); a file missing a part raises a
     one-line GeomprepError naming the rebuild. Does not check that the file is current
     (``verify_processed`` does)."""
+    import h5py  # here: geomprep's config imports this module for DataDirs, its CLI no h5py
+
     path = processed_path(dirs, name)
     try:
         with h5py.File(path, "r") as f:
@@ -186,6 +192,8 @@ def read_sdf_grid(path: str | Path) -> np.ndarray:
 
 
 def _read_sdf(path: str | Path, read: Any) -> Any:
+    import h5py  # see read_object
+
     try:
         with h5py.File(path, "r") as f:
             return read(f[GROUP_SDF])
