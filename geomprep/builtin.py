@@ -9,38 +9,42 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
+
+if TYPE_CHECKING:
+    import trimesh
 
 PREFIX = "builtin_"
 
 
-def _box() -> trimesh.Trimesh:
+def _box(trimesh: ModuleType) -> trimesh.Trimesh:
     return trimesh.creation.box(extents=(0.16, 0.06, 0.21))  # a cereal box
 
 
-def _cylinder() -> trimesh.Trimesh:
+def _cylinder(trimesh: ModuleType) -> trimesh.Trimesh:
     return trimesh.creation.cylinder(radius=0.033, height=0.10, sections=48)  # a soup can
 
 
-def _sphere() -> trimesh.Trimesh:
+def _sphere(trimesh: ModuleType) -> trimesh.Trimesh:
     return trimesh.creation.icosphere(subdivisions=3, radius=0.036)  # a baseball
 
 
-def _plate() -> trimesh.Trimesh:
+def _plate(trimesh: ModuleType) -> trimesh.Trimesh:
     return trimesh.creation.cylinder(radius=0.11, height=0.012, sections=64)  # a thin plate
 
 
-def _knife() -> trimesh.Trimesh:
+def _knife(trimesh: ModuleType) -> trimesh.Trimesh:
     return trimesh.creation.box(extents=(0.21, 0.022, 0.008))  # a knife-like slab
 
 
-def _dice() -> trimesh.Trimesh:
+def _dice(trimesh: ModuleType) -> trimesh.Trimesh:
     return trimesh.creation.box(extents=(0.016, 0.016, 0.016))
 
 
-def _mug() -> trimesh.Trimesh:
+def _mug(trimesh: ModuleType) -> trimesh.Trimesh:
     """A cup (outer r 40 mm, h 90 mm, 5 mm wall, 6 mm floor) with a ring handle; concave."""
     outer = trimesh.creation.cylinder(radius=0.040, height=0.090, sections=48)
     inner = trimesh.creation.cylinder(radius=0.035, height=0.090, sections=48)
@@ -52,7 +56,9 @@ def _mug() -> trimesh.Trimesh:
     return trimesh.boolean.union([cup, handle], engine="manifold")
 
 
-BUILDERS: dict[str, tuple[Callable[[], trimesh.Trimesh], float]] = {
+# The builders take the trimesh module: it is imported only to build a mesh, so that reading
+# NAMES (geomprep.contract.resolve_objects, the trainer) does not load the mesh stack.
+BUILDERS: dict[str, tuple[Callable[[ModuleType], trimesh.Trimesh], float]] = {
     # name: (builder, mass in kg)
     "builtin_box": (_box, 0.40),
     "builtin_cylinder": (_cylinder, 0.35),
@@ -67,7 +73,9 @@ NAMES: tuple[str, ...] = tuple(BUILDERS)
 
 def build(name: str) -> trimesh.Trimesh:
     """The built-in object ``name`` (metres, resting on z = 0, centred in x and y)."""
-    mesh = BUILDERS[name][0]()
+    import trimesh
+
+    mesh = BUILDERS[name][0](trimesh)
     # Like a scanned object: the source origin is at the base, not at the centre of mass.
     mesh.apply_translation((0.0, 0.0, -mesh.bounds[0, 2]))
     return mesh

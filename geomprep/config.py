@@ -20,6 +20,7 @@ from typing import Any, ClassVar
 
 from geomgrasp import config_schema, materials
 from geomgrasp.config_schema import bounded, toml_value  # noqa: F401 (geomprep's configs use them)
+from geomprep.contract import DataDirs
 from geomprep.errors import GeomprepError
 
 DEFAULT_CONFIG_NAME = "geomprep.toml"
@@ -187,10 +188,10 @@ class BuildParams(Checked):
 
 
 @dataclass(frozen=True)
-class Config:
-    """The whole configuration: the data directory and one section per stage."""
+class Config(DataDirs):
+    """The whole configuration: the data directory (``data_dir`` and its parts, from
+    ``DataDirs``) and one section per stage."""
 
-    data_dir: Path = Path("data")
     mesh: MeshParams = field(default_factory=MeshParams)
     decompose: DecomposeParams = field(default_factory=DecomposeParams)
     mjcf: MJCFParams = field(default_factory=MJCFParams)
@@ -199,19 +200,6 @@ class Config:
     sq: SQParams = field(default_factory=SQParams)
     pc: PCParams = field(default_factory=PCParams)
     build: BuildParams = field(default_factory=BuildParams)
-
-    @property
-    def raw_dir(self) -> Path:
-        return self.data_dir / "raw"
-
-    @property
-    def interim_dir(self) -> Path:
-        return self.data_dir / "interim"
-
-    @property
-    def processed_dir(self) -> Path:
-        return self.data_dir / "processed"
-
 
 
 def load_config(path: Path | None = None, data_dir: Path | None = None) -> Config:

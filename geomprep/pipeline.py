@@ -17,9 +17,9 @@ A stage is skipped only if its record (``interim/<name>/<stage>.record.json``, s
 carries the expected key and every file it lists is still intact: the stage file, and for
 ``mjcf`` the model directory, for ``pack`` ``processed/<name>.h5``. A deleted, truncated or
 rewritten output makes its stage ``invalid`` and it is rebuilt. The processed outputs of an
-object whose build fails are removed unless they are still current, and ``verify_processed``
-(used by the trainer) refuses processed files that do not match their record or whose source
-has changed since.
+object whose build fails are removed unless they are still current, and
+``contract.verify_processed`` (used by the trainer) refuses processed files that do not match
+their record or whose source has changed since.
 """
 
 from __future__ import annotations
@@ -48,6 +48,7 @@ from geomprep import (
     bbox,
     builtin,
     cache,
+    contract,
     decompose,
     hashing,
     importer,
@@ -59,9 +60,14 @@ from geomprep import (
     store,
     superquadric,
     workers,
-    ycb,
 )
 from geomprep.config import Config, params_dict
+from geomprep.contract import (  # noqa: F401 (geomprep's commands and tests use them from here)
+    identity,
+    resolve_objects,
+    source_identity,
+    verify_processed,
+)
 from geomprep.errors import GeomprepError
 
 log = logging.getLogger("geomprep")
@@ -98,7 +104,7 @@ VERSIONS: dict[str, int] = {
 def stage_path(cfg: Config, name: str, stage: str) -> Path:
     """Where a stage's output lives; ``pack`` writes the contract's per-object file."""
     if stage == "pack":
-        return cfg.processed_dir / f"{name}.h5"
+        return contract.processed_path(cfg, name)
     return cfg.interim_dir / name / f"{stage}.h5"
 
 
@@ -108,29 +114,6 @@ def stage_params(cfg: Config, stage: str) -> dict[str, Any]:
 
 def _hash(payload: Any) -> str:
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:32]
-
-
-def source_identity(cfg: Config, name: str) -> dict[str, Any]:
-    """What the mesh stage's output depends on: the source file's bytes and the mass rule.
-
-    The file is hashed again only if its size or mtime differ from what the mesh stage's record
-    saw (a rerun need not read every raw mesh)."""
-    source = rawstore.read_source(cfg.raw_dir, name)
-    mesh_path = cfg.raw_dir / name / source["mesh"]
-    seen = (cache.read_record(cfg.interim_dir, name, "mesh") or {}).get("source")
-    if not isinstance(seen, dict) or seen.get("path") != _rel(cfg, mesh_path):
-        seen = None
-    return _identity(
-        source, cache.current_sha256(mesh_path, seen) if mesh_path.is_file() else "missing"
-    )
-
-
-def _identity(source: dict[str, Any], mesh_sha256: str) -> dict[str, Any]:
-    return {
-        "mesh_sha256": mesh_sha256,
-        "mass_kg": source.get("mass_kg"),
-        "density_kg_m3": source.get("density_kg_m3"),
-    }
 
 
 def _rel(cfg: Config, path: Path) -> str:
@@ -203,36 +186,6 @@ def stage_status(cfg: Config, name: str) -> dict[str, str]:
     return {stage: check_stage(cfg, name, stage, key)[0] for stage, key in keys.items()}
 
 
-def verify_processed(cfg: Config, name: str) -> str | None:
-    """None if ``processed/<name>.h5`` and the model directory are what geomprep last built for
-    the current source, else why not (one phrase). Parameters are not compared (a reader may not
-    know the config the build used); content and source are: a file changed since it was
-    written, a model directory from another build than the packed file, or a source that
-    changed since (re-imported, edited) all make the processed files out of date."""
-    h5 = stage_path(cfg, name, "pack")
-    if not h5.is_file():
-        return f"{h5} does not exist"
-    packed = cache.read_record(cfg.interim_dir, name, "pack")
-    if packed is None:
-        return f"{h5} has no build record (made by an older geomprep, or its build was cut short)"
-    problem = cache.check_record(cfg.data_dir, packed)
-    if problem:
-        return problem
-    model = cache.read_record(cfg.interim_dir, name, "mjcf")
-    if model is None or model.get("key") != packed.get("inputs", {}).get("mjcf"):
-        return f"the model in {cfg.processed_dir / name} is not the one {h5} was packed with"
-    problem = cache.check_record(cfg.data_dir, model, prefix=_rel(cfg, cfg.processed_dir) + "/")
-    if problem:
-        return problem
-    try:
-        current = source_identity(cfg, name)
-    except GeomprepError:
-        return f"the source of '{name}' is gone from {cfg.raw_dir}"
-    if current != packed.get("source_identity"):
-        return f"the source of '{name}' in {cfg.raw_dir} changed after {h5} was built"
-    return None
-
-
 # ---------------------------------------------------------------------------------------------
 # Stage bodies: each reads its inputs from disk and returns the groups to write.
 
@@ -262,7 +215,7 @@ def run_mesh(cfg: Config, name: str) -> Groups:
         visual["uv"] = norm.visual_uv
         visual["texture"] = np.asarray(texture, dtype=np.uint8)
     attrs = {
-        "mass_kg": norm.mass_kg,
+        contract.MESH_MASS: norm.mass_kg,
         "volume_m3": norm.volume_m3,
         "watertight": norm.watertight,
         "source_sha256": hashing.file_sha256(path),
@@ -271,7 +224,7 @@ def run_mesh(cfg: Config, name: str) -> Groups:
         "mass_source": "masses.csv" if source.get("mass_kg") is not None else "density",
     }
     return {
-        "mesh": (
+        contract.GROUP_MESH: (
             {"vertices": norm.vertices, "faces": norm.faces, "inertia": norm.inertia_kg_m2},
             attrs,
         ),
@@ -289,7 +242,7 @@ def run_decompose(cfg: Config, name: str) -> Groups:
         "covered_fraction_1mm": float(np.mean(outside <= 1e-3)),
         "max_outside_m": float(outside.max()),
     }
-    return {"decomposition": (decompose.pack_hulls(hulls), attrs)}
+    return {contract.GROUP_DECOMPOSITION: (decompose.pack_hulls(hulls), attrs)}
 
 
 def run_mjcf(cfg: Config, name: str) -> Groups:
@@ -303,7 +256,7 @@ def run_mjcf(cfg: Config, name: str) -> Groups:
         mjcf.write_model_dir(
             tmp_dir,
             name,
-            float(mesh_attrs["mass_kg"]),
+            float(mesh_attrs[contract.MESH_MASS]),
             mesh_arrays["inertia"].astype(np.float64),
             hulls,
             (visual["vertices"], visual["faces"], visual.get("uv")),
@@ -314,7 +267,7 @@ def run_mjcf(cfg: Config, name: str) -> Groups:
         if final_dir.exists():  # os.replace cannot replace a non-empty directory
             shutil.rmtree(final_dir)
     attrs = {
-        "xml": f"{name}/{name}.xml",
+        contract.MJCF_XML: f"{name}/{name}.xml",
         "n_hulls": len(hulls),
         "settle_final_height_m": settle.final_height_m,
         "settle_lowest_point_m": settle.lowest_point_m,
@@ -324,19 +277,19 @@ def run_mjcf(cfg: Config, name: str) -> Groups:
         "settled": settle.final_speed_m_s < 0.01
         and settle.max_height_m <= settle.start_height_m + 1e-3,
     }
-    return {"mjcf": ({}, attrs)}
+    return {contract.GROUP_MJCF: ({}, attrs)}
 
 
 def run_sdf(cfg: Config, name: str) -> Groups:
     vertices, faces = _load_mesh(cfg, name)
     grid = sdf.compute_sdf(vertices, faces, resolution=cfg.sdf.resolution, extent=cfg.sdf.extent_m)
     attrs = {
-        "bounds_min": grid.bounds_min.astype(np.float64),
-        "bounds_max": grid.bounds_max.astype(np.float64),
-        "voxel_size": float(grid.voxel_size),
+        contract.SDF_BOUNDS_MIN: grid.bounds_min.astype(np.float64),
+        contract.SDF_BOUNDS_MAX: grid.bounds_max.astype(np.float64),
+        contract.SDF_VOXEL_SIZE: float(grid.voxel_size),
         **grid.info,
     }
-    return {"sdf": ({"grid": grid.grid}, attrs)}
+    return {contract.GROUP_SDF: ({contract.SDF_GRID: grid.grid}, attrs)}
 
 
 def run_bbox(cfg: Config, name: str) -> Groups:
@@ -345,13 +298,19 @@ def run_bbox(cfg: Config, name: str) -> Groups:
     local = (vertices - center) @ rotation
     contained = np.all(np.abs(local) <= extents / 2 + 1e-6, axis=1)
     attrs = {"volume_m3": float(np.prod(extents)), "contained_fraction": float(contained.mean())}
-    return {"bbox": ({"center": center, "rotation": rotation, "extents": extents}, attrs)}
+    boxes = {
+        contract.BBOX_CENTER: center,
+        contract.BBOX_ROTATION: rotation,
+        contract.BBOX_EXTENTS: extents,
+    }
+    return {contract.GROUP_BBOX: (boxes, attrs)}
 
 
 def run_sq(cfg: Config, name: str) -> Groups:
     vertices, faces = _load_mesh(cfg, name)
     params, info = superquadric.fit_mesh(vertices, faces, cfg.sq)
-    return {"superquadric": ({"params": np.asarray(params, dtype=np.float64)}, dict(info))}
+    fitted = {contract.SQ_PARAMS: np.asarray(params, dtype=np.float64)}
+    return {contract.GROUP_SUPERQUADRIC: (fitted, dict(info))}
 
 
 def run_pc(cfg: Config, name: str) -> Groups:
@@ -361,9 +320,9 @@ def run_pc(cfg: Config, name: str) -> Groups:
     )
     datasets: dict[str, np.ndarray] = {}
     for n, (points, normals) in clouds.items():
-        datasets[f"pc{n}"] = points
-        datasets[f"normals_{n}"] = normals
-    return {"pointcloud": (datasets, {"sizes": list(cfg.pc.sizes)})}
+        datasets[contract.points_name(n)] = points
+        datasets[contract.normals_name(n)] = normals
+    return {contract.GROUP_POINTCLOUD: (datasets, {"sizes": list(cfg.pc.sizes)})}
 
 
 RUNNERS: dict[str, Callable[[Config, str], Groups]] = {
@@ -396,13 +355,13 @@ def run_stage(cfg: Config, name: str, stage: str, key: str) -> float:
             # no longer matches this entry and the next check hashes it again.
             entry = cache.file_entry(mesh_path)
             extra["source"] = {"path": _rel(cfg, mesh_path), **entry}
-            extra["source_identity"] = _identity(source, entry["sha256"])
+            extra["source_identity"] = identity(source, entry["sha256"])
     if stage == "pack":
         files = {s: stage_path(cfg, name, s) for s in STAGES}
         records = {s: cache.read_record(cfg.interim_dir, name, s) or {} for s in STAGES}
         extra["inputs"] = {s: records[s].get("key") for s in STAGES}
         extra["source_identity"] = records["mesh"].get("source_identity")
-        store.pack(files, stage_path(cfg, name, "pack"), {**root, "contract": "geomprep/1"})
+        store.pack(files, stage_path(cfg, name, "pack"), {**root, "contract": contract.CONTRACT})
     else:
         groups = RUNNERS[stage](cfg, name)
         compression = cfg.sdf.compression if stage == "sdf" else "gzip"
@@ -415,52 +374,6 @@ def run_stage(cfg: Config, name: str, stage: str, key: str) -> float:
 
 # ---------------------------------------------------------------------------------------------
 # Objects
-
-
-def resolve_objects(cfg: Config, spec: str | Sequence[str] | None) -> list[str]:
-    """Object names from a comma list that may use the sets ``all``, ``builtin`` and ``ycb``.
-
-    ``all`` (the default) is every imported object plus the built-in set. Built-in objects are
-    written into the raw store on first use. Unknown names, and ``ycb`` with no YCB object
-    imported, raise GeomprepError.
-    """
-    if spec is None:
-        spec = "all"
-    items = [s.strip() for s in (spec.split(",") if isinstance(spec, str) else spec) if s.strip()]
-    if not items:
-        raise GeomprepError(
-            f"no object names in {spec!r}: give names or a set (all, builtin, ycb), comma-separated"
-        )
-    imported = rawstore.complete_objects(cfg.raw_dir)
-    names: list[str] = []
-    for item in items:
-        if item == "all":
-            names += [*builtin.NAMES, *imported]
-        elif item == "builtin":
-            names += list(builtin.NAMES)
-        elif item == "ycb":
-            ycb_names = [n for n in imported if n in ycb.OBJECTS]
-            if not ycb_names:  # not a silent 'nothing to do'
-                raise GeomprepError(
-                    f"the object set 'ycb' is empty: no YCB object is imported in {cfg.raw_dir}: "
-                    "download them with 'geomprep fetch' or import a copy with "
-                    "'geomprep fetch --from DIR'"
-                )
-            names += ycb_names
-        elif item in builtin.NAMES or item in imported:
-            names.append(item)
-        else:
-            hint = (
-                " (a YCB object: import it first with 'geomprep fetch')"
-                if item in ycb.OBJECTS
-                else ""
-            )
-            raise GeomprepError(
-                f"unknown object '{item}'{hint}: run 'geomprep list' to see the available names"
-            )
-    names = list(dict.fromkeys(names))
-    ensure_builtin(cfg, [n for n in names if n in builtin.NAMES])
-    return names
 
 
 def ensure_builtin(cfg: Config, names: Sequence[str]) -> None:

@@ -41,16 +41,15 @@ from __future__ import annotations
 import ctypes
 import mmap
 import sys
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any
 
-import h5py
 import numpy as np
 import torch
 
 from geomgrasp.rotations import quat_to_matrix
 from geomprep import sdf_lookup_cpu
+from geomprep.contract import read_sdf_frame, read_sdf_grid
 from geomprep.errors import GeomprepError
 
 # Relative rounding error of float16 storage (half an ulp of an 11-bit significand).
@@ -220,7 +219,8 @@ class SDFLookup(torch.nn.Module):
         device: str | torch.device = "cpu",
         kernel: str = "auto",
     ) -> SDFLookup:
-        """Load ``sdf/grid`` and its attrs from processed object files, object id = list index.
+        """Load the SDF grids and their frames from processed object files (the names in
+        ``geomprep.contract``), object id = list index.
 
         paths: ``data/processed/<name>.h5`` files (or stage files with an ``sdf`` group); all
         grids must have the same resolution.  Grids are read and bricked one at a time into the
@@ -231,11 +231,11 @@ class SDFLookup(torch.nn.Module):
             raise GeomprepError("no SDF files given: pass at least one processed .h5 file")
 
         # Attributes first (the stack is allocated for all objects), then grids one at a time.
-        attrs = [_read_sdf(p, lambda g: (g.attrs["bounds_min"], g.attrs["voxel_size"])) for p in paths]  # noqa: E501
+        frames = [read_sdf_frame(p) for p in paths]
         return cls(
-            (_read_sdf(p, lambda g: np.asarray(g["grid"][()], dtype=np.float32)) for p in paths),
-            np.stack([np.asarray(a[0], dtype=np.float32) for a in attrs]),
-            np.array([float(a[1]) for a in attrs]),
+            (read_sdf_grid(p) for p in paths),
+            np.stack([bounds_min for bounds_min, _ in frames]),
+            np.array([voxel_size for _, voxel_size in frames]),
             dtype=dtype,
             names=[Path(p).stem for p in paths],
             device=device,
@@ -334,17 +334,6 @@ class SDFLookup(torch.nn.Module):
         c = [torch.lerp(corner[i], corner[i + 4], tz) for i in range(4)]  # (dj, di)
         c = [torch.lerp(c[i], c[i + 2], ty) for i in range(2)]  # di
         return torch.lerp(c[0], c[1], tx).masked_fill(nan, float("nan"))
-
-
-def _read_sdf(path: str | Path, read: Callable[[h5py.Group], Any]) -> Any:
-    """``read(f["sdf"])`` of an HDF5 file, a one-line GeomprepError naming the fix if it fails."""
-    try:
-        with h5py.File(path, "r") as f:
-            return read(f["sdf"])
-    except (OSError, KeyError) as err:
-        raise GeomprepError(
-            f"cannot read an SDF grid from {path} ({err}): build it with `geomprep sdf`"
-        ) from err
 
 
 def naive_query(

@@ -3,7 +3,8 @@
 Every stage writes one file, ``interim/<name>/<stage>.h5``, holding its datasets and, as root
 attributes, its cache key, parameters and code version. A file is written to ``*.tmp`` and
 renamed into place only when complete, so a killed build never leaves a file that looks done.
-``pack`` then copies every stage's groups into ``processed/<name>.h5``, the file the trainer reads.
+``pack`` then copies every stage's groups into ``processed/<name>.h5``, the file the trainer reads
+(its layout is named in ``geomprep.contract``).
 Whether a file is still what was written is ``cache``'s business (the build records).
 """
 
@@ -18,17 +19,7 @@ import h5py
 import numpy as np
 
 from geomgrasp.files import atomic_path
-
-# Which group of the contract each stage fills.
-STAGE_GROUPS: dict[str, str] = {
-    "mesh": "mesh",
-    "decompose": "decomposition",
-    "mjcf": "mjcf",
-    "sdf": "sdf",
-    "bbox": "bbox",
-    "sq": "superquadric",
-    "pc": "pointcloud",
-}
+from geomprep.contract import STAGE_ATTR_PREFIX, STAGE_GROUPS  # noqa: F401 (store.STAGE_GROUPS)
 
 
 def _write_attrs(obj: h5py.HLObject, attrs: Mapping[str, Any]) -> None:
@@ -123,5 +114,5 @@ def pack(stage_files: Mapping[str, Path], out_path: Path, root_attrs: Mapping[st
             with h5py.File(src_path, "r") as src:
                 src.copy(src[group], out, name=group)
                 for key, value in src.attrs.items():
-                    out[group].attrs[f"stage_{key}"] = value
+                    out[group].attrs[f"{STAGE_ATTR_PREFIX}{key}"] = value
         _write_attrs(out, root_attrs)

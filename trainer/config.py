@@ -140,15 +140,20 @@ class RobotConfig(_Checked):
 @dataclass(frozen=True)
 class RewardConfig(_Checked):
     """r = c1 / (|h_bar - dh| + eps_h) + c2 · 1(success) + c3 / (d + eps_sdf) (the paper), where
-    success is dh >= h_bar with the target held (``hold_tips``)."""
+    success is dh >= h_bar with the target held (``hold_tips``). The terms (lift, success,
+    contact) and their weights are one table, ``trainer.tasks.terms.reward_terms``; each is
+    logged as ``reward_<term>``."""
 
     kind: str = bounded("sdf", choices=REWARDS)
-    """``sdf`` (d: fingertip distances to the surface), ``com`` (to the centre of mass) or
-    ``none`` (c3 = 0)."""
+    """The contact term's variant: ``sdf`` (d: fingertip distances to the surface), ``com`` (to
+    the centre of mass) or ``none`` (no contact term: 0)."""
     h_bar: float = bounded(0.2, gt=0)
     c1: float = 0.5
+    """Weight of the lift term."""
     c2: float = 5000.0
+    """Weight of the success term (the bonus)."""
     c3: float = 1.0
+    """Weight of the contact term."""
     eps_h: float = bounded(0.02, gt=0)
     eps_sdf: float = bounded(0.025, gt=0)
     h_bar_start: float = 0.2

@@ -1,5 +1,9 @@
 """The objects of a run: geomprep's artifacts for every object, loaded once into tensors.
 
+geomprep is reached through its read-only contract (``geomprep.contract``: which objects, are
+they current, read one) and its SDF lookup (``geomprep.sdf_lookup``), neither of which imports
+the mesh stack.
+
 Object id = index in ``ObjectSet.names``. All quantities are in the object frame (origin at the
 centre of mass, the frame of the MJCF free body and of the SDF grid), metres.
 """
@@ -9,13 +13,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import h5py
 import numpy as np
 import torch
 
-from geomprep.config import Config, load_config
+from geomprep import contract
 from geomprep.errors import GeomprepError
-from geomprep.pipeline import resolve_objects, verify_processed
 from geomprep.sdf_lookup import SDFLookup
 from trainer.errors import TrainerError
 
@@ -46,7 +48,7 @@ class ObjectSet:
 def resolve_names(spec: str, data_dir: Path) -> list[str]:
     """Object names from a set (``builtin``, ``ycb``, ``all``) or a comma list."""
     try:
-        names = resolve_objects(load_config(data_dir=data_dir), spec)
+        names = contract.resolve_objects(contract.DataDirs(Path(data_dir)), spec)
     except GeomprepError as exc:
         raise TrainerError(str(exc)) from None
     if not names:
@@ -63,44 +65,33 @@ def load_objects(
     device: str | torch.device = "cpu",
     sdf_dtype: torch.dtype = torch.float32,
 ) -> ObjectSet:
-    """Read ``data_dir/processed/<name>.h5`` for every name (see the README's data contract).
+    """Read ``data_dir/processed/<name>.h5`` for every name (``geomprep.contract``).
 
     Only files geomprep has verified: every object's processed files must match geomprep's
-    build record and come from its current source (``geomprep.pipeline.verify_processed``), so
+    build record and come from its current source (``geomprep.contract.verify_processed``), so
     a damaged file, a failed rebuild or a re-imported source is refused, not trained on."""
-    processed = Path(data_dir) / "processed"
-    h5_paths = [processed / f"{name}.h5" for name in names]
+    dirs = contract.DataDirs(Path(data_dir))
+    h5_paths = [contract.processed_path(dirs, name) for name in names]
     missing = [n for n, p in zip(names, h5_paths, strict=True) if not p.is_file()]
     if missing:
         raise TrainerError(
             f"no geomprep output for {', '.join(missing[:5])}"
-            f"{' ...' if len(missing) > 5 else ''} in {processed}: run "
+            f"{' ...' if len(missing) > 5 else ''} in {dirs.processed_dir}: run "
             f"`geomprep build-all --objects {','.join(missing)}`"
         )
-    geomprep_cfg = Config(data_dir=Path(data_dir))  # only its directories are used
-    problems = {n: why for n in names if (why := verify_processed(geomprep_cfg, n)) is not None}
+    problems = {
+        n: why for n in names if (why := contract.verify_processed(dirs, n)) is not None
+    }
     if problems:
         first = next(iter(problems.values()))
         more = f" (and {len(problems) - 1} more objects)" if len(problems) > 1 else ""
         raise TrainerError(
             f"{first}{more}: rebuild with `geomprep build-all --objects {','.join(problems)}`"
         )
-    centers, rotations, extents, sq, points, keys, xmls = [], [], [], [], [], [], []
-    for name, path in zip(names, h5_paths, strict=True):
-        try:
-            with h5py.File(path, "r") as f:
-                centers.append(f["bbox/center"][:])
-                rotations.append(f["bbox/rotation"][:])
-                extents.append(f["bbox/extents"][:])
-                sq.append(f["superquadric/params"][:])
-                points.append(f["pointcloud/pc512"][:])
-                keys.append(str(f["mjcf"].attrs["stage_cache_key"]))
-                xmls.append(processed / str(f["mjcf"].attrs["xml"]))
-        except (KeyError, OSError) as exc:
-            raise TrainerError(
-                f"{path} is incomplete ({exc}): rebuild it with `geomprep build-all --objects "
-                f"{name}`"
-            ) from None
+    try:
+        objects = [contract.read_object(dirs, name) for name in names]
+    except GeomprepError as exc:
+        raise TrainerError(str(exc)) from None
 
     def stack(arrays: list[np.ndarray]) -> torch.Tensor:
         return torch.as_tensor(np.stack(arrays), dtype=torch.float32, device=device)
@@ -108,13 +99,13 @@ def load_objects(
     sdf = SDFLookup.from_hdf5(h5_paths, dtype=sdf_dtype, device=device) if need_sdf else None
     return ObjectSet(
         names=list(names),
-        xml_paths=xmls,
+        xml_paths=[o.xml_path for o in objects],
         h5_paths=h5_paths,
-        mjcf_keys=keys,
-        bbox_center=stack(centers),
-        bbox_rotation=stack(rotations),
-        bbox_extents=stack(extents),
-        sq_params=stack(sq),
-        points=stack(points),
+        mjcf_keys=[o.mjcf_key for o in objects],
+        bbox_center=stack([o.bbox_center for o in objects]),
+        bbox_rotation=stack([o.bbox_rotation for o in objects]),
+        bbox_extents=stack([o.bbox_extents for o in objects]),
+        sq_params=stack([o.sq_params for o in objects]),
+        points=stack([o.points for o in objects]),
         sdf=sdf,
     )

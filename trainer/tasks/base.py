@@ -16,7 +16,8 @@ Output keys (batch E; see ``trainer.tasks.observation_spec``):
 - ``object``: the target's representation (``trainer.representations``), (E, D) or (E, N, 3)
 - ``context`` (E, K-1, 10) and ``context_mask`` (E, K-1): the other objects' boxes (bin task
   with ``context = "bbox"`` only)
-- ``reward`` (E, 1) and its terms ``reward_lift``, ``reward_success``, ``reward_contact``
+- ``reward`` (E, 1) and its terms ``reward_<name>`` (E, 1): ``reward_lift``,
+  ``reward_success``, ``reward_contact`` (the table in ``trainer.tasks.terms``)
 - ``success`` (E, 1) bool, ``lift_height`` (E, 1) m (the target's), ``object_id`` (E, 1) long
   (the target's object id), ``unstable`` (E, 1) bool: the simulation blew up and the episode
   was cut (never a crash)
@@ -47,6 +48,13 @@ from trainer.representations import object_representation
 from trainer.robots import Robot, make_robot
 from trainer.sim import make_backend
 from trainer.tasks.spec import observation_spec
+from trainer.tasks.terms import (
+    StepQuantities,
+    evaluate_terms,
+    reward_output_key,
+    reward_terms,
+    total_reward,
+)
 
 ESCAPE_DISTANCE = 2.0
 """An object higher than this above the table top, or farther than this from its centre (m), is
@@ -368,9 +376,10 @@ class GraspTask(EnvBase):
         out = TensorDict(
             {
                 **obs,
-                "reward_lift": terms["lift"][:, None],
-                "reward_success": terms["success"][:, None],
-                "reward_contact": terms["contact"][:, None],
+                **{
+                    reward_output_key(name): terms[name][:, None]
+                    for name in reward_terms(self.cfg.reward)
+                },
                 "success": success[:, None],
                 "unstable": unstable[:, None],
                 "lift_height": lift[:, None],
@@ -423,8 +432,7 @@ class GraspTask(EnvBase):
             tip_distance = torch.zeros_like(tips[..., 0])
         flags = self._get_termination(lift, h_bar, tip_distance, obj_pos, step_count)
         terms = self._get_reward(lift, h_bar, flags[0], tips, tip_distance, obj_pos)
-        reward = terms["lift"] + terms["success"] + terms["contact"]
-        terms["reward"] = torch.nan_to_num(reward, nan=0.0, posinf=0.0, neginf=0.0)
+        terms["reward"] = total_reward(terms)
         terms["lift_height"] = lift
         return obs, terms, flags, palm_pos
 
@@ -474,24 +482,14 @@ class GraspTask(EnvBase):
         tip_distance: torch.Tensor,
         obj_pos: torch.Tensor,
     ) -> dict[str, torch.Tensor]:
-        """The paper's reward on the target, term by term (E,) each. lift (E,) m; success (E,)
-        bool (``_get_termination``); tips (E, 5, 3) fingertip pads; tip_distance (E, 5) their
-        signed distances to the target's surface (m)."""
+        """The reward's weighted terms on the target (E,) each, by name in summation order
+        (``trainer.tasks.terms.reward_terms``: the paper's, or an ablation, per ``[reward]``).
+        lift (E,) m; h_bar (E,) m; success (E,) bool (``_get_termination``); tips (E, 5, 3)
+        fingertip pads; tip_distance (E, 5) their signed distances to the target's surface (m);
+        obj_pos (E, 3) m."""
         r = self.cfg.reward
-        terms = {
-            "lift": r.c1 / ((h_bar - lift).abs() + r.eps_h),
-            "success": r.c2 * success.float(),
-        }
-        if r.kind == "none":
-            terms["contact"] = torch.zeros_like(lift)
-            return terms
-        if r.kind == "sdf":
-            # A fingertip pressed into the surface is in contact: its distance is 0, not < 0.
-            total = tip_distance.clamp_min(0.0).sum(-1)
-        else:
-            total = (tips - obj_pos[:, None, :]).norm(dim=-1).sum(-1)
-        terms["contact"] = r.c3 / (total + r.eps_sdf)
-        return terms
+        quantities = StepQuantities(lift, h_bar, success, tips, tip_distance, obj_pos)
+        return evaluate_terms(reward_terms(r), quantities, r)
 
     def _get_termination(
         self, lift: torch.Tensor, h_bar: torch.Tensor, tip_distance: torch.Tensor,

@@ -1,5 +1,6 @@
 """The specs of a task's inputs and outputs, from its config alone: the env declares them and
-the networks are built from them (``trainer.models.Agent``), without building any physics."""
+the networks are built from them (``trainer.models.Agent``), without building any physics. The
+observation keys and the logged reward terms come from their tables in ``trainer.tasks.terms``."""
 
 from __future__ import annotations
 
@@ -7,17 +8,14 @@ import torch
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 
 from trainer.config import ACTION_DIM, EnvConfig
-from trainer.representations import representation_shape
-
-PROPRIO_DIM = 20
-"""Palm keypoint position (3), palm orientation (6-d), hand joints (11)."""
-CONTEXT_DIM = 10
-"""One other object's box: centre (3), quaternion (4), full extents (3)."""
-
-
-def context_size(cfg: EnvConfig) -> int:
-    """Other objects in the context (0 without context)."""
-    return cfg.bin.num_objects - 1 if cfg.context == "bbox" else 0
+from trainer.tasks.terms import (  # noqa: F401 (spec.PROPRIO_DIM etc., their former home)
+    CONTEXT_DIM,
+    PROPRIO_DIM,
+    context_size,
+    observation_terms,
+    reward_output_key,
+    reward_terms,
+)
 
 
 def observation_spec(
@@ -28,20 +26,19 @@ def observation_spec(
     flag = lambda: Categorical(2, shape=(E, 1), dtype=torch.bool, device=device)  # noqa: E731
     scalar = lambda: Unbounded(shape=(E, 1), device=device)  # noqa: E731
     keys = {
-        "proprio": Unbounded(shape=(E, PROPRIO_DIM), device=device),
-        "object": Unbounded(shape=(E, *representation_shape(cfg.representation)), device=device),
+        term.name: (
+            Categorical(2, shape=(E, *term.shape(cfg)), dtype=torch.bool, device=device)
+            if term.dtype == torch.bool
+            else Unbounded(shape=(E, *term.shape(cfg)), dtype=term.dtype, device=device)
+        )
+        for term in observation_terms(cfg)
     }
-    if (n := context_size(cfg)) > 0:
-        keys["context"] = Unbounded(shape=(E, n, CONTEXT_DIM), device=device)
-        keys["context_mask"] = Categorical(2, shape=(E, n), dtype=torch.bool, device=device)
     observation = Composite(
         **keys,
         success=flag(),
         unstable=flag(),
         lift_height=scalar(),
-        reward_lift=scalar(),
-        reward_success=scalar(),
-        reward_contact=scalar(),
+        **{reward_output_key(name): scalar() for name in reward_terms(cfg.reward)},
         object_id=Unbounded(shape=(E, 1), dtype=torch.long, device=device),
         shape=(E,),
         device=device,
