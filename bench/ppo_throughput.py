@@ -31,12 +31,10 @@ from pathlib import Path
 
 import torch
 from env_throughput import PAPER_STEPS_PER_S, WARP_ENVS, pick_objects, sync
-from torchrl.collectors import Collector
 
 from trainer.config import check_backend, check_device, load_train_config
 from trainer.errors import TrainerError
-from trainer.models import Agent
-from trainer.ppo import iteration_frames, train
+from trainer.ppo import iteration_frames, make_agent, make_collector, train
 from trainer.tasks import make_env
 
 
@@ -51,10 +49,9 @@ def env_only(cfg, iterations: int, physics: bool) -> dict[str, float]:  # noqa: 
     env = make_env(cfg.env, seed=cfg.run.seed)
     sync(device)
     build_s = time.perf_counter() - start
-    agent = Agent(env.observation_spec, cfg.ppo).to(env.device)
+    agent = make_agent(env, cfg.ppo)
     frames = iteration_frames(cfg)
-    collector = Collector(env, agent.actor, frames_per_batch=frames, total_frames=-1,
-                          auto_register_policy_transforms=False)
+    collector = make_collector(env, agent, frames)
     batches = iter(collector)
     start = time.perf_counter()
     next(batches)  # warm-up

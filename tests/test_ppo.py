@@ -24,8 +24,11 @@ from trainer.config import RewardConfig, load_train_config
 from trainer.errors import TrainerError
 from trainer.evaluation import evaluate, run_episodes
 from trainer.models import Agent, RunningNorm
-from trainer.ppo import LiftCurriculum, ObjectOutcomes, load_agent, minibatch_size, train
+from trainer.ppo import minibatch_size, train
 from trainer.tasks import make_env
+from trainer.training.checkpoint import load_agent
+from trainer.training.curriculum import LiftCurriculum
+from trainer.training.outcomes import ObjectOutcomes
 
 OBJECTS = "builtin_cylinder,builtin_sphere"
 
@@ -226,8 +229,8 @@ def test_object_success_rate_weighs_objects_equally() -> None:
     outcomes.extend([1] * 100, [True] * 100)  # object 1's window is its last 100 episodes
     assert outcomes.rate() == pytest.approx(1.0)
     restored = ObjectOutcomes(window=100)
-    restored.load(outcomes.state())
-    assert restored.state() == outcomes.state() and restored.rate() == outcomes.rate()
+    restored.load_state_dict(outcomes.state_dict())
+    assert restored.state_dict() == outcomes.state_dict() and restored.rate() == outcomes.rate()
     assert math.isnan(ObjectOutcomes(window=4).rate())
 
 
@@ -518,12 +521,12 @@ def test_per_object_curriculum_promotes_each_object_on_its_own_success() -> None
     assert not curriculum.by_object.by_object[0]  # a new window at the new target
     assert curriculum.rate() == 0.0  # object 1's 0 of 22 (object 0 has no episode yet)
     restored = LiftCurriculum(reward, num_objects=3, window=64)
-    restored.load(curriculum.state())
+    restored.load_state_dict(curriculum.state_dict())
     assert restored.h_bars == curriculum.h_bars
-    assert restored.by_object.state() == curriculum.by_object.state()
+    assert restored.by_object.state_dict() == curriculum.by_object.state_dict()
     # A checkpoint with one target for all objects does not resume a per-object run.
     with pytest.raises(TrainerError, match="curriculum_per_object"):
-        restored.load({"h_bar": 0.05, "target_outcomes": []})
+        restored.load_state_dict({"h_bar": 0.05, "target_outcomes": []})
     # Small windows are floored (16 episodes), and the global rule is unchanged.
     assert LiftCurriculum(reward, num_objects=10, window=64).window == 16
     single = LiftCurriculum(dataclasses.replace(reward, curriculum_per_object=False), 3, 4)

@@ -16,6 +16,7 @@ import trainer.cli
 import trainer.ppo
 from geomprep.config import Config
 from trainer.config import config_dict, load_train_config
+from trainer.training.run_dir import RunDir
 
 
 def test_importing_the_cli_does_not_import_torch() -> None:
@@ -197,7 +198,7 @@ def _bins_hold(run_dir: Path) -> tuple[list[str], list[str]]:
     """(objects in the run's bins, objects of its set in none), from the run's own env."""
     from trainer.evaluation import run_bins
 
-    env = run_bins(trainer.ppo.RunDir(run_dir).load_config(), 1)
+    env = run_bins(RunDir(run_dir).load_config(), 1)
     names = env.objects.names
     held = {names[k] for k in env.layouts.unique().tolist()}
     env.close()
@@ -288,7 +289,7 @@ def test_forced_targets_are_the_asked_object(bin_run: Path) -> None:
     from trainer.evaluation import force_targets, play_bins
 
     held, _ = _bins_hold(bin_run)
-    cfg = trainer.ppo.RunDir(bin_run).load_config()
+    cfg = RunDir(bin_run).load_config()
     env, ids, slots = play_bins(cfg, held[-1], 2)
     k = env.objects.names.index(held[-1])
     assert ids == [0, 1] and (slots[2:] == -1).all()  # one bin: every env holds it

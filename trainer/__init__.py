@@ -4,7 +4,8 @@
 UR5e + Schunk SIH grasping tasks (``lift``, ``bin``; ``tasks.make_env`` builds one) on scenes with
 object slots (the model from ``assets``, simulated by a ``sim`` backend, observed through
 ``kinematics``, ``objects`` and ``representations``, reset from ``init_states``); ``models`` and
-``ppo`` are the policy and its training; ``evaluation``, ``video`` and ``report`` judge a trained
+``ppo`` are the policy and its training loop (the run's state, run directory and checkpoints in
+``training``); ``evaluation``, ``video`` and ``report`` judge a trained
 run; ``scripted`` is a scripted grasp that shows the physics can grasp; ``cli`` is the
 ``trainer`` command. The data it reads is described in README.md ("The data contract").
 """

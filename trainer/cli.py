@@ -256,7 +256,8 @@ def run(
 
 
 def _resume(run_dir: Path, steps: int | None, minutes: float | None) -> None:
-    from trainer.ppo import RunDir, train
+    from trainer.ppo import train
+    from trainer.training.run_dir import RunDir
 
     cfg = RunDir(run_dir).load_config()
     changes, said = {}, []
@@ -382,8 +383,8 @@ def play(
     _device(device)
     from trainer.evaluation import play_bins, run_episodes, successes_first
     from trainer.objects import resolve_names
-    from trainer.ppo import load_agent
     from trainer.tasks import make_env
+    from trainer.training.checkpoint import load_agent
     from trainer.video import EnvRecorder, StateTape
 
     cfg, agent = load_agent(_run_dir(run_dir), device)

@@ -23,9 +23,10 @@ from geomgrasp.files import atomic_path
 from trainer.config import EnvConfig, TrainConfig
 from trainer.errors import TrainerError
 from trainer.objects import resolve_names
-from trainer.ppo import RunDir, load_agent
 from trainer.report import task_label
 from trainer.tasks import GraspTask, make_env
+from trainer.training.checkpoint import load_agent
+from trainer.training.run_dir import RunDir
 
 MAX_ROUNDS = 20
 """Rounds of bin episodes at most (``trainer eval --max-rounds``)."""

@@ -39,6 +39,7 @@ import numpy as np
 from geomgrasp.files import atomic_path
 from trainer.config import ABSENT_MEANS
 from trainer.errors import TrainerError
+from trainer.training.run_dir import RunDir
 
 GroupKey = tuple[str, str, str, str]
 """(task, representation, reward kind, robot kind): task ``lift`` or ``binN``, representation
@@ -137,10 +138,9 @@ def load_run(path: str | Path) -> Run:
         raise TrainerError(
             f"{path}: not a directory; pass a run directory written by trainer run"
         )
-    config = _read_config(path / "config.json")
-    env_steps, wall_time_s, success_rate, h_bar, target_rate = _read_metrics(
-        path / "metrics.csv"
-    )
+    run = RunDir(path)
+    config = _read_config(run.config)
+    env_steps, wall_time_s, success_rate, h_bar, target_rate = _read_metrics(run.metrics)
     per_object_path = path / "eval" / "per_object.csv"
     per_object = _read_per_object(per_object_path) if per_object_path.is_file() else None
     return Run(

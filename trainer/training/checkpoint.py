@@ -1,0 +1,183 @@
+"""A training run's whole state (``TrainState``) and the checkpoint files that hold it.
+
+A checkpoint holds the networks, optimizer, normalizers, every random generator, the episode
+counters, the lift curriculum and the whole simulation state of every env, so a resumed run
+continues exactly as if it had never stopped (``tests/test_ppo.py`` checks this bit for bit).
+Checkpoints are written atomically; an unreadable ``last.pt`` falls back to the newest
+readable ``iter_NNNNNN.pt``.
+
+The file is one ``torch.save``-d dict; ``TrainState.state_dict`` writes, and
+``load_state_dict`` reads, the same keys as every checkpoint written so far (older ones lack
+``h_bar``, ``target_outcomes``, ``object_outcomes``: defaults stand in)."""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from geomgrasp.files import atomic_path
+from trainer.config import TrainConfig, check_device
+from trainer.errors import TrainerError
+from trainer.models import Agent
+from trainer.tasks import GraspTask, observation_spec
+from trainer.training.curriculum import LiftCurriculum
+from trainer.training.outcomes import EpisodeStats
+from trainer.training.run_dir import RunDir
+
+CHECKPOINT_KEYS = (
+    "iteration", "wall_time_s", "agent", "optimizer", "shuffle_rng", "torch_rng", "outcomes",
+    "episode_return", "episode_length", "env",
+)
+"""Keys every checkpoint has (a file without them is not one; the curriculum's are optional)."""
+
+
+@dataclass
+class TrainState:
+    """Everything a run carries from one iteration to the next: ``iteration`` (done so far),
+    ``wall_time_s`` (s of training so far), the agent (networks and normalizers) and its
+    optimizer, the minibatch-order generator ``shuffle``, the episode counters, the lift
+    curriculum and the envs (their simulation, task state and generator).
+
+    The global torch generator (actions are drawn from it) is written by ``state_dict`` but set
+    by ``restore_global_rng``, apart: a resumed run sets it after the collector's set-up, which
+    draws from it (and the envs' snapshot is applied at the collector's first reset, so
+    ``load_state_dict`` comes before that)."""
+
+    agent: Agent
+    optimizer: torch.optim.Optimizer
+    shuffle: torch.Generator
+    episodes: EpisodeStats
+    curriculum: LiftCurriculum
+    env: GraspTask
+    iteration: int = 0
+    wall_time_s: float = 0.0
+
+    def state_dict(self) -> dict[str, Any]:
+        device = self.env.device
+        episodes = self.episodes.state_dict()
+        # In the key order of the checkpoints written so far.
+        return {
+            "iteration": self.iteration,
+            "wall_time_s": self.wall_time_s,
+            "agent": self.agent.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "shuffle_rng": self.shuffle.get_state(),
+            "torch_rng": torch.get_rng_state(),
+            **({"cuda_rng": torch.cuda.get_rng_state(device)} if device.type == "cuda" else {}),
+            "outcomes": episodes.pop("outcomes"),
+            **self.curriculum.state_dict(),
+            **episodes,
+            "env": self.env.snapshot(),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Everything but the global generator (``restore_global_rng``); the envs return to
+        their snapshot at their next full reset."""
+        self.agent.load_state_dict(state["agent"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.shuffle.set_state(state["shuffle_rng"])
+        self.episodes.load_state_dict(state)
+        self.curriculum.load_state_dict(state)
+        self.iteration, self.wall_time_s = state["iteration"], state["wall_time_s"]
+        self.env.restore_on_next_reset(state["env"])
+
+
+def restore_global_rng(state: dict[str, Any], device: torch.device) -> None:
+    """Set torch's global generator(s) (the CPU one, and ``device``'s if it is a GPU and the
+    checkpoint has it) to a checkpoint's."""
+    torch.set_rng_state(state["torch_rng"])
+    if device.type == "cuda" and "cuda_rng" in state:
+        torch.cuda.set_rng_state(state["cuda_rng"], device)
+
+
+def write_checkpoint(run: RunDir, state: dict[str, Any]) -> None:
+    """``state`` (a ``TrainState.state_dict``) as the checkpoint of its iteration and as
+    ``last.pt``."""
+    run.checkpoints.mkdir(parents=True, exist_ok=True)
+    with atomic_path(run.checkpoint(state["iteration"])) as tmp:
+        torch.save(state, tmp)
+    with atomic_path(run.last) as tmp:
+        torch.save(state, tmp)
+
+
+def load_last_checkpoint(run: RunDir, map_location: str | None = None) -> dict[str, Any]:
+    """The state in ``last.pt`` or, if that is missing or unreadable (a truncated, empty or
+    corrupt file), in the newest readable ``iter_NNNNNN.pt``; a fallback is reported on
+    stderr."""
+    candidates = [run.last, *sorted(run.checkpoints.glob("iter_*.pt"), reverse=True)]
+    unreadable = []
+    for path in candidates:
+        if not path.is_file():
+            continue
+        state = read_checkpoint(path, map_location)
+        if isinstance(state, str):
+            unreadable.append(f"{path.name} ({state})")
+            continue
+        if unreadable:
+            print(
+                f"warning: {run.checkpoints}: unreadable {', '.join(unreadable)}; using "
+                f"{path.name} (iteration {state['iteration']})", file=sys.stderr, flush=True,
+            )
+        return state
+    if unreadable:
+        raise TrainerError(
+            f"{run.checkpoints}: no readable checkpoint ({', '.join(unreadable)}): start the run "
+            f"again with --overwrite"
+        )
+    raise TrainerError(f"{run.path}: no checkpoint yet ({run.last}): train it with trainer run")
+
+
+def load_checkpoint_of(run: RunDir, iteration: int) -> dict[str, Any]:
+    """The state of the checkpoint of ``iteration``, exactly that one (on the CPU)."""
+    path = run.checkpoint(iteration)
+    if not path.is_file():
+        kept = run.checkpoint_iterations()
+        listed = ", ".join(map(str, kept)) if len(kept) <= 4 else (
+            f"{kept[0]}, {kept[1]}, ..., {kept[-1]}")
+        have = f"it has iterations {listed}" if kept else "it has none"
+        raise TrainerError(f"{run.path}: no checkpoint of iteration {iteration} ({have})")
+    state = read_checkpoint(path, map_location="cpu")  # whatever device it was trained on
+    if isinstance(state, str):
+        raise TrainerError(f"{path}: unreadable ({state})")
+    return state
+
+
+def read_checkpoint(path: Path, map_location: str | None) -> dict[str, Any] | str:
+    """The state in the checkpoint file ``path``, or why it is not one (a reason, not raised:
+    ``load_last_checkpoint`` then tries the next file)."""
+    try:
+        state = torch.load(path, weights_only=False, map_location=map_location)
+    except Exception as exc:  # noqa: BLE001 (whatever torch.load raises, the file is bad)
+        # An EOFError must not escape: click would turn it into "aborted", as for Ctrl-C.
+        return type(exc).__name__
+    if not isinstance(state, dict) or any(k not in state for k in CHECKPOINT_KEYS):
+        return "not a checkpoint"
+    return state
+
+
+def load_agent(
+    run_dir: Path, device: str | None = None, iteration: int | None = None
+) -> tuple[TrainConfig, Agent]:
+    """A trained run's config and agent (networks + normalizers, in eval mode) from its last
+    readable checkpoint (or that of ``iteration``), on ``device`` (default: the run's), which
+    the returned config names."""
+    run = RunDir(Path(run_dir))
+    cfg = run.load_config()
+    if device is not None:
+        cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, device=device))
+    check_device(
+        cfg.env.device, f"device {cfg.env.device!r} of {run.path}", "pass --device cpu"
+    )
+    if iteration is None:
+        state = load_last_checkpoint(run, map_location="cpu")  # whatever device it trained on
+    else:
+        state = load_checkpoint_of(run, iteration)
+    agent = Agent(observation_spec(cfg.env, 1)["observation"], cfg.ppo)
+    agent.load_state_dict(state["agent"])
+    agent.eval()
+    return cfg, agent.to(cfg.env.device)

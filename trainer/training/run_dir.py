@@ -1,0 +1,166 @@
+"""A training run on disk: its folder, its resolved config, its metrics file and where its
+checkpoints go (what is in a checkpoint: ``trainer.training.checkpoint``).
+
+Torch-free, so that ``trainer report`` can read runs without importing the training stack."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from geomgrasp.files import atomic_path
+from trainer.config import TrainConfig, config_dict, predated_fields, read_train_config
+from trainer.errors import TrainerError
+
+METRICS = (
+    "iteration", "env_steps", "wall_time_s", "fps", "success_rate", "object_success_rate", "h_bar",
+    "target_success_rate", "episodes", "episode_return", "episode_length", "unstable_resets",
+    "loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx", "clip_fraction",
+    "action_std", "lr",
+)
+"""The columns of ``metrics.csv``, one row per PPO iteration."""
+
+GROWABLE = ("run.total_steps", "run.max_minutes")
+"""The config keys a resumed run may change: it may only grow longer."""
+
+
+@dataclass(frozen=True)
+class RunDir:
+    """A training run on disk: ``config.json`` (the resolved config), ``metrics.csv`` (one row
+    per iteration), ``tb/`` (TensorBoard), ``checkpoints/iter_NNNNNN.pt`` and ``last.pt``."""
+
+    path: Path
+
+    @property
+    def config(self) -> Path:
+        return self.path / "config.json"
+
+    @property
+    def metrics(self) -> Path:
+        return self.path / "metrics.csv"
+
+    @property
+    def tensorboard(self) -> Path:
+        return self.path / "tb"
+
+    @property
+    def checkpoints(self) -> Path:
+        return self.path / "checkpoints"
+
+    @property
+    def last(self) -> Path:
+        return self.checkpoints / "last.pt"
+
+    def checkpoint(self, iteration: int) -> Path:
+        """The checkpoint written at the end of ``iteration``."""
+        return self.checkpoints / f"iter_{iteration:06d}.pt"
+
+    def checkpoint_iterations(self) -> list[int]:
+        """The iterations that have an ``iter_NNNNNN.pt``, oldest first."""
+        return sorted(int(p.stem[5:]) for p in self.checkpoints.glob("iter_*.pt"))
+
+    # --- the config --------------------------------------------------------------------------
+    def load_config(self) -> TrainConfig:
+        if not self.path.is_dir():
+            raise TrainerError(
+                f"{self.path}: no such run directory: pass one written by trainer run"
+            )
+        return read_train_config(self.config)
+
+    def write_config(self, cfg: TrainConfig) -> None:
+        self.path.mkdir(parents=True, exist_ok=True)
+        with atomic_path(self.config) as tmp:
+            tmp.write_text(json.dumps(config_dict(cfg), indent=2))
+
+    def config_to_resume(self, cfg: TrainConfig | None) -> TrainConfig:
+        """The config a resumed run continues with: its own config.json, or ``cfg`` if that
+        differs from it only in the keys of ``GROWABLE`` (a run continues bit for bit only with
+        its own config). A config.json written before a field existed is refused, naming the
+        value to add (today's default may not be what it ran with)."""
+        stored = self.load_config()
+        for dotted, value in predated_fields(self.config).items():
+            parent, name = dotted.rsplit(".", 1)
+            raise TrainerError(
+                f"{self.path} predates {dotted} (it trained with {name} = {value}, not today's "
+                f"default): to resume it as it ran, add \"{name}\": {json.dumps(value)} under "
+                f"{parent} in its config.json"
+            )
+        if cfg is None:
+            return stored
+        check_same_run(self, stored, cfg)
+        return cfg
+
+    # --- a fresh run -------------------------------------------------------------------------
+    def holds_run(self) -> bool:
+        """Whether a run (even one killed before its first checkpoint) wrote here."""
+        return any(p.exists() for p in (self.config, self.metrics, self.checkpoints))
+
+    def make_room(self, overwrite: bool) -> None:
+        """Prepare for a fresh run: a directory that holds a run is refused (appending to its
+        metrics would mix two runs) unless ``overwrite``, which deletes that run first."""
+        if not self.holds_run():
+            return
+        if not overwrite:
+            can_resume = self.checkpoints.is_dir() and any(self.checkpoints.glob("*.pt"))
+            how = f"resume it with --resume {self.path}, or " if can_resume else ""
+            raise TrainerError(
+                f"{self.path} already holds a run: {how}start it afresh with --overwrite, or "
+                "choose another --run-dir or --seed"
+            )
+        self.clear()
+
+    def clear(self) -> None:
+        """Delete what a run writes here (nothing else in the directory)."""
+        for path in (self.config, self.metrics):
+            path.unlink(missing_ok=True)
+        for path in (self.checkpoints, self.tensorboard, self.path / "eval"):
+            shutil.rmtree(path, ignore_errors=True)
+
+    # --- metrics.csv -------------------------------------------------------------------------
+    def append_metrics(self, row: dict[str, Any]) -> None:
+        """One iteration's row (the ``METRICS`` columns of ``row``)."""
+        new = not self.metrics.is_file()
+        with open(self.metrics, "a", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=METRICS)
+            if new:
+                writer.writeheader()
+            writer.writerow({k: row[k] for k in METRICS})
+
+    def truncate_metrics(self, iteration: int) -> None:
+        """Drop the rows a killed run wrote after its last checkpoint (``iteration``): they
+        will be redone."""
+        if not self.metrics.is_file():
+            return
+        with open(self.metrics, newline="") as handle:
+            rows = [r for r in csv.DictReader(handle) if int(r["iteration"]) <= iteration]
+        with atomic_path(self.metrics) as tmp, open(tmp, "w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=METRICS)
+            writer.writeheader()
+            writer.writerows(rows)
+
+
+def check_same_run(run: RunDir, stored: TrainConfig, cfg: TrainConfig) -> None:
+    """A resumed run continues bit for bit only with its own config; its length may grow."""
+    changed = [
+        k for k in changed_keys(config_dict(stored), config_dict(cfg)) if k not in GROWABLE
+    ]
+    if changed:
+        raise TrainerError(
+            f"{run.path}: a resumed run keeps its config.json, but {', '.join(changed)} differ: "
+            "start a new run to change them"
+        )
+
+
+def changed_keys(a: dict[str, Any], b: dict[str, Any], prefix: str = "") -> list[str]:
+    """The dotted keys whose values differ between the nested dicts ``a`` and ``b``."""
+    changed = []
+    for key in sorted(set(a) | set(b)):
+        if isinstance(a.get(key), dict) and isinstance(b.get(key), dict):
+            changed += changed_keys(a[key], b[key], f"{prefix}{key}.")
+        elif a.get(key) != b.get(key):
+            changed.append(prefix + key)
+    return changed
