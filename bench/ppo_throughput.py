@@ -35,6 +35,7 @@ from env_throughput import PAPER_STEPS_PER_S, WARP_ENVS, pick_objects, sync
 from trainer.config import check_backend, check_device, load_train_config
 from trainer.errors import TrainerError
 from trainer.ppo import iteration_frames, make_agent, make_collector, train
+from trainer.randomness import run_streams
 from trainer.tasks import make_env
 
 
@@ -46,7 +47,7 @@ def env_only(cfg, iterations: int, physics: bool) -> dict[str, float]:  # noqa: 
     device = cfg.env.device
     sync(device)
     start = time.perf_counter()
-    env = make_env(cfg.env, seed=cfg.run.seed)
+    env = make_env(cfg.env, seed=run_streams(cfg))
     sync(device)
     build_s = time.perf_counter() - start
     agent = make_agent(env, cfg.ppo)

@@ -383,6 +383,7 @@ def play(
     _device(device)
     from trainer.evaluation import play_bins, run_episodes, successes_first
     from trainer.objects import resolve_names
+    from trainer.randomness import RandomStreams
     from trainer.tasks import make_env
     from trainer.training.checkpoint import load_agent
     from trainer.video import EnvRecorder, StateTape
@@ -395,7 +396,8 @@ def play(
         env, ids, slots = play_bins(cfg, names[0], tries)
         env.set_seed(seed)
     else:
-        env = make_env(dataclasses.replace(cfg.env, objects=names[0], num_envs=tries), seed)
+        env_cfg = dataclasses.replace(cfg.env, objects=names[0], num_envs=tries)
+        env = make_env(env_cfg, RandomStreams(seed, legacy=not cfg.run.random_streams))
         ids, slots = list(range(tries)), None
     tape = StateTape(env)
     success, length, _ = run_episodes(

@@ -402,6 +402,11 @@ class RunConfig(_Checked):
     """Episodes in the running success rate; 0 = the number of envs."""
     torch_threads: int = bounded(1, ge=1)
     """Threads of torch's own ops (the simulation has its own pool)."""
+    random_streams: bool = True
+    """Every generator of the run draws from its own stream derived from ``seed``
+    (``trainer.randomness``). False: each is seeded with ``seed`` itself, as runs before
+    2026-11-25 were (their config.json lacks this key and reads as false, so they resume and
+    evaluate as they ran)."""
 
 
 @dataclass(frozen=True)
@@ -476,11 +481,15 @@ def override(section: Any, values: Mapping[str, Any], names: Mapping[str, str]) 
 def train_config_from_dict(values: Any, source: str = "config.json") -> TrainConfig:
     """The inverse of ``config_dict(train_config)`` (a run directory's config.json, named
     ``source`` in errors). Runs written before the objects' contact parameters moved to
-    geomprep's MJCF carry ``physics.object_friction``: it is dropped (it equals geomprep's)."""
+    geomprep's MJCF carry ``physics.object_friction``: it is dropped (it equals geomprep's); runs
+    written before the derived random streams get ``run.random_streams = false``."""
     if isinstance(values, dict):
         physics = values.get("env", {}).get("physics", {})
         if isinstance(physics, dict):
             physics.pop("object_friction", None)
+        run = values.get("run")
+        if isinstance(run, dict) and "random_streams" not in run:
+            run["random_streams"] = False  # the run predates the derived random streams
     return _build(TrainConfig, values, source)
 
 

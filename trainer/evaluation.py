@@ -23,6 +23,7 @@ from geomgrasp.files import atomic_path
 from trainer.config import EnvConfig, TrainConfig
 from trainer.errors import TrainerError
 from trainer.objects import resolve_names
+from trainer.randomness import RandomStreams, run_streams
 from trainer.report import task_label
 from trainer.tasks import GraspTask, make_env
 from trainer.training.checkpoint import load_agent
@@ -181,7 +182,10 @@ def evaluate(
             cfg, agent.actor, names, episodes_per_object, seed, max_envs, max_rounds
         )
     else:
-        result = _evaluate_lift(cfg.env, agent.actor, names, episodes_per_object, seed, max_envs)
+        result = _evaluate_lift(
+            cfg.env, agent.actor, names, episodes_per_object, seed, max_envs,
+            legacy=not cfg.run.random_streams,
+        )
     result = dataclasses.replace(
         result, success_text=cfg.env.reward.success_text(), iteration=iteration
     )
@@ -191,8 +195,10 @@ def evaluate(
 
 def _evaluate_lift(
     cfg: EnvConfig, actor: torch.nn.Module, names: list[str], episodes_per_object: int,
-    seed: int, max_envs: int,
+    seed: int, max_envs: int, legacy: bool = False,
 ) -> EvalResult:
+    """legacy: seed the envs as runs before the derived random streams did
+    (``trainer.randomness``)."""
     episodes = [0] * len(names)
     successes = [0] * len(names)
     # Objects in batches of envs: each batch runs episodes_per_object episodes of each object.
@@ -202,7 +208,7 @@ def _evaluate_lift(
         env_cfg = dataclasses.replace(
             cfg, objects=",".join(chunk), num_envs=episodes_per_object * len(chunk)
         )
-        env = make_env(env_cfg, seed=seed + start)
+        env = make_env(env_cfg, seed=RandomStreams(seed + start, legacy=legacy))
         success, _, ids = run_episodes(env, actor)
         for k in range(len(chunk)):
             episodes[start + k] += int((ids == k).sum())
@@ -219,7 +225,7 @@ def run_bins(cfg: TrainConfig, num_envs: int, objects: Sequence[str] | None = No
     env_cfg = dataclasses.replace(cfg.env, num_envs=num_envs)
     if objects is not None:
         env_cfg = dataclasses.replace(env_cfg, objects=",".join(objects))
-    return make_env(env_cfg, seed=cfg.run.seed)
+    return make_env(env_cfg, seed=run_streams(cfg))
 
 
 def successes_first(ids: Sequence[int], success: torch.Tensor, count: int) -> list[int]:

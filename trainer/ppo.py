@@ -28,6 +28,7 @@ from torchrl.objectives.value import GAE
 from trainer.config import PPOConfig, TrainConfig, check_device
 from trainer.errors import TrainerError
 from trainer.models import Agent
+from trainer.randomness import run_streams
 from trainer.tasks import GraspTask, make_env
 from trainer.training.checkpoint import (
     TrainState,
@@ -88,10 +89,11 @@ def train(
         "resume it where that device exists" if resume else "train with --device cpu",
     )
     torch.set_num_threads(cfg.run.torch_threads)
-    torch.manual_seed(cfg.run.seed)
+    streams = run_streams(cfg)
+    streams.seed_global_torch("actions")
     # The env first: a config it refuses (a bin larger than the object set, a missing object)
     # leaves no run directory behind that a corrected rerun would have to --overwrite.
-    env = make_env(cfg.env, seed=cfg.run.seed)
+    env = make_env(cfg.env, seed=streams)
     run.write_config(cfg)
     agent = make_agent(env, cfg.ppo)
     update = PPOUpdate.build(agent, cfg.ppo, minibatch_size(cfg))
@@ -207,7 +209,7 @@ def make_train_state(
         optimizer=optimizer,
         # Every tensor of the loop lives on the env's device; the minibatch order is drawn
         # there too.
-        shuffle=torch.Generator(device=env.device).manual_seed(cfg.run.seed),
+        shuffle=run_streams(cfg).torch("shuffle", env.device),
         # Success at the task's lift height (the paper's measure) and, for the curriculum, at
         # the current training target.
         episodes=EpisodeStats(cfg.env.num_envs, window, cfg.env.reward.h_bar, env.device),

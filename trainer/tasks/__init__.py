@@ -5,6 +5,7 @@ representations are listed in ``trainer.config.TASKS`` (importable without torch
 from __future__ import annotations
 
 from trainer.config import TASKS, EnvConfig
+from trainer.randomness import RandomStreams
 from trainer.tasks.base import GraspTask
 from trainer.tasks.bin import BinTask
 from trainer.tasks.lift import LiftTask
@@ -14,8 +15,9 @@ REGISTRY: dict[str, type[GraspTask]] = {"lift": LiftTask, "bin": BinTask}
 assert set(REGISTRY) == set(TASKS), "trainer.config.TASKS must list every task"
 
 
-def make_env(cfg: EnvConfig, seed: int = 0) -> GraspTask:
-    """The environment of ``cfg.task`` with ``cfg.num_envs`` envs (seeded by ``seed``)."""
+def make_env(cfg: EnvConfig, seed: int | RandomStreams = 0) -> GraspTask:
+    """The environment of ``cfg.task`` with ``cfg.num_envs`` envs, its randomness from ``seed``
+    (a seed's derived streams, or the streams of a run: ``trainer.randomness``)."""
     return REGISTRY[cfg.task](cfg, seed=seed)
 
 

@@ -44,6 +44,7 @@ from trainer.errors import TrainerError
 from trainer.init_states import load_or_build_bank
 from trainer.kinematics import SiteKinematics
 from trainer.objects import ObjectSet, load_objects, resolve_names
+from trainer.randomness import RandomStreams
 from trainer.representations import object_representation
 from trainer.robots import Robot, make_robot
 from trainer.sim import make_backend
@@ -90,7 +91,7 @@ class GraspTask(EnvBase):
 
     name: ClassVar[str] = ""
 
-    def __init__(self, cfg: EnvConfig, seed: int = 0) -> None:
+    def __init__(self, cfg: EnvConfig, seed: int | RandomStreams = 0) -> None:
         super().__init__(device=torch.device(cfg.device), batch_size=torch.Size([cfg.num_envs]))
         self.cfg = cfg
         E = cfg.num_envs
@@ -104,8 +105,12 @@ class GraspTask(EnvBase):
         self.objects: ObjectSet = load_objects(
             names, cfg.data_dir, need_sdf, self.device, sdf_dtype
         )
-        rng = np.random.default_rng(seed)
-        self.scene, layouts, env_layout = self._layouts(len(names), rng)
+        # One source of randomness (trainer.randomness): the layouts and the episodes' resets
+        # draw from their own streams of the run's seed.
+        self.streams = seed if isinstance(seed, RandomStreams) else RandomStreams(seed)
+        self.scene, layouts, env_layout = self._layouts(
+            len(names), self.streams.numpy("layouts")
+        )
         K = self.scene.num_slots
         # Layout l fills slot k with object layouts[l, k]; env i simulates layout env_layout[i]
         # (sorted, so that the CPU backend steps each layout's model on a contiguous block).
@@ -138,8 +143,7 @@ class GraspTask(EnvBase):
             self.model
         )
 
-        self._rng = torch.Generator(device=self.device)
-        self._rng.manual_seed(seed)
+        self._rng = self.streams.torch("resets", self.device)
         self.state = TensorDict(
             {
                 "step_count": torch.zeros(E, dtype=torch.long),
@@ -209,7 +213,9 @@ class GraspTask(EnvBase):
         self.h_bar.copy_(torch.tensor(h_bar, dtype=self.h_bar.dtype))
 
     def _set_seed(self, seed: int | None) -> None:
-        self._rng.manual_seed(0 if seed is None else seed)
+        # TorchRL's ``set_seed``: evaluation and videos seed their episodes with it.
+        streams = RandomStreams(0 if seed is None else seed, legacy=self.streams.legacy)
+        self._rng.manual_seed(streams.seed_of("resets"))
 
     @property
     def num_envs(self) -> int:

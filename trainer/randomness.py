@@ -1,0 +1,76 @@
+"""One seeded source of randomness per run, derived into independent named streams.
+
+A run has one seed (``run.seed``; evaluation its own fixed seed). Every consumer of randomness
+draws from a stream derived from that seed and the stream's name, so no two consumers share a
+sequence (before, the env's reset generator and PPO's minibatch shuffle were two torch
+generators seeded with the same number, and drew the same numbers), and adding a stream never
+shifts another one:
+
+=============  ==================  ==========================================================
+stream         kind                what draws from it
+=============  ==================  ==========================================================
+``layouts``    numpy Generator     which objects fill each layout's slots (``GraspTask``)
+``resets``     torch Generator     settled state, yaw and target of each new episode
+``actions``    torch global        the policy's sampled actions (TorchRL samples with torch's
+                                   global generator) and the networks' initial weights
+``shuffle``    torch Generator     PPO's minibatch order
+=============  ==================  ==========================================================
+
+The initial-state banks are not run randomness: they are cached data, keyed by their content
+(``trainer.init_states``), seeded by ``init.seed`` and the objects they hold.
+
+Runs whose config.json predates the streams (no ``run.random_streams``) used the seed itself
+for every generator; ``RandomStreams(seed, legacy=True)`` reproduces that, so they resume and
+evaluate exactly as they ran.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+
+if TYPE_CHECKING:
+    from trainer.config import TrainConfig
+
+STREAMS = ("layouts", "resets", "actions", "shuffle")
+
+
+class RandomStreams:
+    """The named random streams of one run, all derived from ``seed``."""
+
+    def __init__(self, seed: int, legacy: bool = False) -> None:
+        self.seed = int(seed)
+        self.legacy = legacy
+
+    def seed_of(self, stream: str) -> int:
+        """The 63-bit seed of ``stream``: ``seed`` and the stream's name through numpy's
+        ``SeedSequence`` (statistically independent streams, stable across platforms)."""
+        if stream not in STREAMS:
+            raise ValueError(f"unknown random stream {stream!r}: one of {', '.join(STREAMS)}")
+        if self.legacy:
+            return self.seed
+        name_key = int.from_bytes(hashlib.sha256(stream.encode()).digest()[:8], "little")
+        sequence = np.random.SeedSequence(self.seed, spawn_key=(name_key,))
+        return int(sequence.generate_state(1, np.uint64)[0] >> np.uint64(1))
+
+    def numpy(self, stream: str) -> np.random.Generator:
+        """A numpy generator of ``stream``."""
+        return np.random.default_rng(self.seed_of(stream))
+
+    def torch(self, stream: str, device: torch.device | str = "cpu") -> torch.Generator:
+        """A torch generator of ``stream`` on ``device``."""
+        return torch.Generator(device=device).manual_seed(self.seed_of(stream))
+
+    def seed_global_torch(self, stream: str = "actions") -> None:
+        """Seed torch's global generator (what TorchRL's action sampling and the networks'
+        initialisation draw from) with ``stream``."""
+        torch.manual_seed(self.seed_of(stream))
+
+
+def run_streams(cfg: TrainConfig) -> RandomStreams:
+    """The streams of a training run: its seed, derived unless its config predates the streams
+    (``run.random_streams`` false)."""
+    return RandomStreams(cfg.run.seed, legacy=not cfg.run.random_streams)
