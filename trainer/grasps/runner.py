@@ -10,6 +10,7 @@ from typing import Protocol
 import torch
 from tensordict import TensorDict
 
+from trainer.grasps.top import TopGrasp
 from trainer.tasks import GraspTask
 
 
@@ -104,10 +105,7 @@ def run_scripted_grasp(
     """Reset every env and run ``script`` (default: the top grasp); return (E,) bool: the
     env's success at some step. ``on_step(step)`` is called after every action (e.g. to render
     a frame); ``recorder`` captures the trajectory."""
-    if script is None:
-        from trainer.grasps.top import TopGrasp
-
-        script = TopGrasp()
+    script = script or TopGrasp()
     env.reset()
     plan: dict = {}
     lifted = torch.zeros(env.num_envs, dtype=torch.bool, device=env.device)
