@@ -20,7 +20,7 @@ from geomprep.config import Config
 from tests.conftest import GRASP_TEST_OBJECTS as GRASP_OBJECTS
 from tests.conftest import build_ycb
 from trainer.config import load_env_config
-from trainer.scripted import ScriptedGrasp, run_scripted_grasp
+from trainer.grasps import TopGrasp, run_scripted_grasp
 from trainer.tasks import make_env
 
 TRIALS = 10
@@ -66,7 +66,7 @@ def test_scripted_grasp_fails_without_closing(builtin_data: Config) -> None:
     """The success flag is earned: an open hand lifts nothing."""
     cfg = load_env_config(num_envs=4, objects="builtin_cylinder", data_dir=builtin_data.data_dir)
     env = make_env(dataclasses.replace(cfg, representation="com"), seed=3)
-    script = ScriptedGrasp(thumb_closed=ScriptedGrasp().thumb_open)
+    script = TopGrasp(thumb_closed=TopGrasp().thumb_open)
     env.robot.hand.closed = env.robot.hand.open.clone()  # "closing" commands the open hand
     lifted = run_scripted_grasp(env, script)
     env.close()
@@ -91,7 +91,7 @@ def test_demo_command_writes_video(builtin_data: Config, tmp_path: Path) -> None
     meta = next(reader)
     frames = [np.frombuffer(f, np.uint8) for f in reader]
     assert meta["size"] == (640, 240)  # two 320x240 tiles side by side
-    assert len(frames) == ScriptedGrasp().total_steps  # one frame per action of the script
+    assert len(frames) == TopGrasp().total_steps  # one frame per action of the script
     assert np.ptp(frames[0]) > 50  # a rendered scene, not a blank frame
 
 
@@ -153,7 +153,7 @@ def test_video_frames_hand_and_object_and_rolls_on_after_the_lift(builtin_data: 
     )
     env = make_env(cfg, seed=0)
     recorder = EnvRecorder(env, [0, 1], width=160, height=120)
-    script = ScriptedGrasp()
+    script = TopGrasp()
     hz = round(cfg.physics.control_hz)
     lift_frame: list[int | None] = [None, None]
 
@@ -206,7 +206,7 @@ def test_filming_a_tape_renders_the_frames_of_a_live_recording(builtin_data: Con
         live.capture()
         tape.capture()
 
-    run_scripted_grasp(env, ScriptedGrasp(), on_step)
+    run_scripted_grasp(env, TopGrasp(), on_step)
     for step in range(3):  # the hold after the episodes (capture_hold), both recording
         env.hold()
         on_step(step)
@@ -265,16 +265,16 @@ def test_scripted_grasp_reaches_the_bin_target_from_above(builtin_data: Config) 
     """In a bin the script goes for the episode's target (not slot 0): after the approach the
     hand hovers over the grasp pose on the target's box, then comes straight down until it
     reaches that pose or rests on the clutter. (Picking from clutter is not asked of it.)"""
-    from trainer.scripted import grasp_frame, scripted_action
+    from trainer.grasps import grasp_frame
 
     env = bin_env(builtin_data.data_dir, num_envs=4, seed=5)
-    script = ScriptedGrasp()
+    script = TopGrasp()
     env.reset()
     assert len(set(env.state["target_slot"].tolist())) > 1  # not always the same slot
     center, half_height, _ = grasp_frame(env)
     plan: dict = {}
     for step in range(script.approach_steps + script.descend_steps):
-        action = scripted_action(env, script, step, plan)
+        action = script.action(env, step, plan)
         env.step(TensorDict({"action": action}, batch_size=env.batch_size))
         offset = env.state["palm_pos"] - plan["goal"]
         if step == script.approach_steps - 1:  # hovering over the grasp pose
@@ -302,7 +302,7 @@ def test_video_of_a_bin_frames_hand_bin_and_target(builtin_data: Config) -> None
 
     env = bin_env(builtin_data.data_dir, num_envs=2, seed=2)
     recorder = EnvRecorder(env, [0, 1], width=160, height=120)
-    script = ScriptedGrasp()
+    script = TopGrasp()
 
     def on_step(step: int) -> None:
         recorder.capture()

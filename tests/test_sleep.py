@@ -14,7 +14,7 @@ import torch
 from geomprep.config import Config
 from trainer.config import load_env_config
 from trainer.errors import TrainerError
-from trainer.scripted import run_scripted_grasp
+from trainer.grasps import run_scripted_grasp
 from trainer.tasks import make_env
 from trainer.tasks.base import GraspTask
 

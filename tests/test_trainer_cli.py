@@ -231,6 +231,79 @@ def test_lift_eval_names_the_task(
     assert "| object | episodes | com |" in table and "| **all (6 episodes)** |" in table
 
 
+def test_lift_eval_sample_draws_the_actions_and_says_so(
+    lift_run: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
+) -> None:
+    """``trainer eval --sample``: the policy's actions are drawn from its Gaussian (as in
+    training), so the rollouts differ from the mean's; seeded, they repeat; the output folder
+    (eval-sampled) and the table say which, and the deterministic eval is left alone."""
+    import torch
+
+    from trainer.evaluation import run_episodes
+    from trainer.tasks import make_env
+
+    code, _, err = invoke_all(["eval", str(lift_run), "--episodes-per-object", "2"],
+                              monkeypatch, capsys)
+    assert code == 0, err
+    deterministic = (lift_run / "eval" / "table.md").read_text()
+    code, out, err = invoke_all(["eval", str(lift_run), "--episodes-per-object", "2",
+                                 "--sample"], monkeypatch, capsys)
+    assert code == 0, err
+    assert out.splitlines()[0] == (
+        "task lift, representation com: success per target object (actions sampled)"
+    )
+    table = (lift_run / "eval-sampled" / "table.md").read_text()
+    assert table.startswith("Success per target object: task lift, representation com; the "
+                            "last checkpoint; actions sampled from the policy (as in training).")
+    assert (lift_run / "eval" / "table.md").read_text() == deterministic
+    assert "sampled" not in deterministic
+
+    cfg, agent = trainer.training.checkpoint.load_agent(lift_run, "cpu")
+
+    def final_qpos(deterministic: bool, seed: int) -> torch.Tensor:
+        env = make_env(cfg.env, seed=3)
+        with torch.random.fork_rng():
+            torch.manual_seed(seed)
+            run_episodes(env, agent.actor, deterministic)
+        qpos = env.backend.qpos.clone()
+        env.close()
+        return qpos
+
+    mean = final_qpos(True, 0)
+    assert torch.equal(mean, final_qpos(True, 1))  # the mean draws nothing
+    sampled = final_qpos(False, 0)
+    assert not torch.equal(mean, sampled)
+    assert torch.equal(sampled, final_qpos(False, 0)) and not torch.equal(
+        sampled, final_qpos(False, 1)
+    )
+
+
+def test_lift_eval_pads_counts_held_successes(
+    lift_run: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
+) -> None:
+    """``trainer eval --pads``: the held-lift analysis (results/cpu-table1, "Tosses are not
+    lifts") as columns of the eval; without it the files keep their columns."""
+    import torch
+
+    from trainer.evaluation import SuccessPads
+
+    code, out, err = invoke_all(["eval", str(lift_run), "--episodes-per-object", "2",
+                                 "--hold-tips", "0", "--pads", "--out", "eval-pads"],
+                                monkeypatch, capsys)
+    assert code == 0, err
+    assert "held by two pads" in out.splitlines()[1]
+    header = (lift_run / "eval-pads" / "per_object.csv").read_text().splitlines()[0]
+    assert header.endswith(",representation,held_successes,nearest_pad_median_m")
+    assert "| object | successes | held | nearest pad, median |" in (
+        lift_run / "eval-pads" / "table.md").read_text()
+    # The counting itself: two successes of object 1, one held (two pads within 2 cm).
+    pads = SuccessPads(3)
+    pads.ids.append(torch.tensor([1, 1]))
+    pads.pads.append(torch.tensor([[0.0, 0.01, 0.3, 0.3, 0.3], [0.25, 0.3, 0.3, 0.3, 0.22]]))
+    assert pads.held() == [0, 1, 0]
+    assert pads.nearest()[0] is None and pads.nearest()[1] == pytest.approx(0.0)
+
+
 def test_bin_eval_counts_episodes_per_target(
     bin_run: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
 ) -> None:

@@ -32,8 +32,8 @@ from geomprep.config import Config  # noqa: E402
 from tests.conftest import GRASP_TEST_OBJECTS, YCB_TEST_OBJECTS, build_ycb  # noqa: E402
 from tests.test_ppo import main, metrics_iterations  # noqa: E402
 from trainer.config import load_env_config, load_train_config  # noqa: E402
+from trainer.grasps import run_scripted_grasp  # noqa: E402
 from trainer.ppo import train  # noqa: E402
-from trainer.scripted import run_scripted_grasp  # noqa: E402
 from trainer.tasks import make_env  # noqa: E402
 
 DEVICE = os.environ.get("GEOMGRASP_WARP_TEST_DEVICE", "cpu")

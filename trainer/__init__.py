@@ -5,7 +5,9 @@ UR5e + Schunk SIH grasping tasks (``lift``, ``bin``; ``tasks.make_env`` builds o
 object slots (the model from ``assets``, simulated by a ``sim`` backend, observed through
 ``kinematics``, ``objects`` and ``representations``, reset from ``init_states``); ``models`` and
 ``ppo`` are the policy and its training loop (the run's state, run directory and checkpoints in
-``training``); ``evaluation``, ``video`` and ``report`` judge a trained
-run; ``scripted`` is a scripted grasp that shows the physics can grasp; ``cli`` is the
-``trainer`` command. The data it reads is described in README.md ("The data contract").
+``training``); ``evaluation``, ``video`` and ``report`` judge a trained run; ``grasps`` are
+scripted grasp families (top, pinch) that show what the physics can grasp, each trial's outcome
+classified; ``robots`` the robots (UR5e + SIH hand, floating hand) as parts; ``randomness`` the
+run's one seed and its streams; ``cli`` is the ``trainer`` command. The data it reads is
+described in README.md ("The data contract"); the parts in docs/architecture.md.
 """

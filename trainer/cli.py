@@ -68,6 +68,7 @@ def cli() -> None:
     \b
     Typical use:
       trainer demo                          # scripted grasps + video: the physics can grasp
+      trainer grasp --family pinch          # scripted trials, each outcome classified
       trainer run --repr sq                 # train (run directory under runs/)
       trainer eval runs/NAME                # per-object success table
       trainer report runs/*                 # mean +- std tables and plots over seeds
@@ -113,8 +114,8 @@ def demo(
     """
     _at_least("--trials", trials, 1)
     _at_least("--seed", seed, 0)
+    from trainer.grasps import TopGrasp, run_scripted_grasp
     from trainer.objects import resolve_names
-    from trainer.scripted import ScriptedGrasp, run_scripted_grasp
     from trainer.tasks import make_env
 
     overrides = {"data_dir": data_dir} if data_dir else {}
@@ -133,7 +134,7 @@ def demo(
 
         firsts = [int((targets == k).nonzero()[0, 0]) for k in range(len(names))]
         recorder = EnvRecorder(env, firsts[:4], width=320, height=240)
-    script = ScriptedGrasp()
+    script = TopGrasp()
     with click.progressbar(length=script.total_steps, label="scripted grasp") as bar:
 
         def on_step(step: int) -> None:
@@ -152,6 +153,77 @@ def demo(
         recorder.close()
         click.echo(f"video: {path}")
     env.close()
+
+
+@cli.command()
+@click.option("--family", "family_name", default="top", show_default=True,
+              help="Grasp family: top (palm down, close, lift) or pinch (thumb tip against "
+              "index tip at table height).")
+@click.option("--variants", default="base", show_default=True,
+              help="The family's named variants (comma-separated; 'all': every one).")
+@click.option("--grid", is_flag=True, help="Instead of --variants: the family's geometry grid.")
+@click.option("--objects", default=None,
+              help="Object set or names [the family's: top the Table I objects, pinch the "
+              "dice, knife, tuna can and plate; --grid: the grid's].")
+@click.option("--trials", default=10, show_default=True, help="Randomized trials per object.")
+@click.option("--seed", default=0, show_default=True, help="Seed of the initial states.")
+@click.option("--backend", type=click.Choice(BACKENDS), default=None,
+              help="Physics backend [cpu]; warp: MuJoCo Warp.")
+@click.option("--device", default=None, help="Torch / Warp device [cpu].")
+@click.option("--hold-tips", type=int, default=None,
+              help="Success: lifted by h_bar with this many fingertip pads on the target (0: "
+              "any rise) [reward.hold_tips, 2].")
+@click.option("--out", type=click.Path(path_type=Path, dir_okay=False), default=None,
+              help="CSV with one row per variant and object (rewritten after each variant).")
+@_config_options
+def grasp(
+    family_name: str, variants: str, grid: bool, objects: str | None, trials: int, seed: int,
+    backend: str | None, device: str | None, hold_tips: int | None, out: Path | None,
+    config_path: Path | None, data_dir: Path | None,
+) -> None:
+    """Scripted grasp trials, each classified: lifted (the task's success), dropped (rose 2 cm,
+    not lifted), no grip (never rose 2 cm), pushed (never rose, knocked > 2 cm sideways first).
+
+    All variants run the same initial states: TRIALS per object in one batch, seeded by SEED.
+    Prints a table per variant; --out writes the rows (with the highest and median rise, the
+    lowest thumb and index pad during the close, and the lifts held by two pads within 2 cm).
+    """
+    _at_least("--trials", trials, 1)
+    _at_least("--seed", seed, 0)
+    _device(device)
+    if hold_tips is not None:
+        _at_least("--hold-tips", hold_tips, 0)
+    import time
+
+    from trainer.grasps import family, family_variants, measure
+    from trainer.grasps.outcomes import write_rows
+
+    fam = family(family_name)
+    names = None if variants == "all" else [v for v in variants.split(",") if v]
+    chosen = family_variants(family_name, names, grid=grid)
+    if objects is None:
+        objects = ",".join(fam.grid_objects or fam.objects if grid else fam.objects)
+    env = {k: v for k, v in {"data_dir": data_dir, "backend": backend, "device": device,
+                             "reward": None if hold_tips is None else {"hold_tips": hold_tips},
+                             }.items() if v is not None}
+    rows: list[dict] = []
+    for name, variant in chosen.items():
+        start = time.perf_counter()
+        batch = measure(family_name, name, variant, objects.split(","), trials, seed,
+                        config_path, **env)
+        rows += batch
+        lifted, total = sum(r["lifted"] for r in batch), sum(r["trials"] for r in batch)
+        click.echo(f"\n### {family_name} {name} ({lifted}/{total} lifted, "
+                   f"{time.perf_counter() - start:.0f} s)\n")
+        click.echo("| object | lifted | dropped | no grip | pushed | max rise cm | held lifts |")
+        click.echo("|---|---:|---:|---:|---:|---:|---:|")
+        for r in batch:
+            click.echo(f"| {r['object']} | {r['lifted']} | {r['dropped']} | {r['no_grip']} | "
+                       f"{r['pushed']} | {r['max_rise_cm']} | {r['held_lifts']} |")
+        if out is not None:
+            write_rows(out, rows)
+    if out is not None:
+        click.echo(f"\nrows: {out}")
 
 
 @cli.command()
@@ -289,16 +361,23 @@ def _resume(run_dir: Path, steps: int | None, minutes: float | None) -> None:
               help="Success: lifted by this many metres [the run's reward.h_bar, 0.2].")
 @click.option("--iteration", type=int, default=None,
               help="Evaluate the checkpoint of this training iteration [the last].")
-@click.option("--out", default="eval", show_default=True,
-              help="Folder in the run directory for the results (trainer report reads eval).")
+@click.option("--sample", is_flag=True,
+              help="Sample the actions from the policy's Gaussian, as in training, instead of "
+              "taking its mean (seeded: repeatable).")
+@click.option("--pads", is_flag=True,
+              help="Also count the successes held by two or more fingertip pads within 2 cm of "
+              "the target at the success step (with --hold-tips 0: which lifts were tosses).")
+@click.option("--out", default=None,
+              help="Folder in the run directory for the results (trainer report reads eval) "
+              "[eval; with --sample: eval-sampled].")
 @click.option("--device", default=None, help="Torch device [the run's].")
 def eval_cmd(
     run_dir: Path, episodes_per_object: int, objects: str | None, max_rounds: int,
-    hold_tips: int | None, h_bar: float | None, iteration: int | None, out: str,
-    device: str | None,
+    hold_tips: int | None, h_bar: float | None, iteration: int | None, sample: bool,
+    pads: bool, out: str | None, device: str | None,
 ) -> None:
     """Success per target object of the deterministic policy (eval/per_object.csv,
-    eval/table.md).
+    eval/table.md), or with --sample of the policy as it acts in training.
 
     Lift: EPISODES_PER_OBJECT episodes of each object. Bin: the bins the run trained on, rounds
     of new episodes with the targets balanced over the objects, until each object in the bins
@@ -313,12 +392,15 @@ def eval_cmd(
         _at_least("--iteration", iteration, 1)
     result = evaluate(
         _run_dir(run_dir), episodes_per_object, objects, device=device, max_rounds=max_rounds,
-        hold_tips=hold_tips, h_bar=h_bar, iteration=iteration, out=out,
+        hold_tips=hold_tips, h_bar=h_bar, iteration=iteration, out=out, sample=sample,
+        pads=pads,
     )
-    click.echo(f"{result.describe()}: success per target object")
+    sampled = " (actions sampled)" if sample else ""
+    click.echo(f"{result.describe()}: success per target object{sampled}")
     width = max(len(n) for n in result.names)
     for k, name in enumerate(result.names):
-        click.echo(f"{name:<{width}}  {result.successes[k]}/{result.episodes[k]}")
+        held = "" if result.held is None else f"  held by two pads {result.held[k]}"
+        click.echo(f"{name:<{width}}  {result.successes[k]}/{result.episodes[k]}{held}")
     click.echo(f"{'overall':<{width}}  {result.overall:.3f}")
     click.echo(f"success: the target {result.success_text}")
     if result.short:

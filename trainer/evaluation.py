@@ -1,5 +1,6 @@
-"""Evaluation of a trained policy: deterministic actions (the Gaussian's mean), success counted
-per *target* object (the paper's Table I), and the episodes behind rollout videos.
+"""Evaluation of a trained policy: deterministic actions (the Gaussian's mean; or sampled, as in
+training), success counted per *target* object (the paper's Table I), and the episodes behind
+rollout videos.
 
 Lift: a fixed number of episodes per object (one object per env). Bin: the run's own bins (the
 layouts its training drew, from the run's seed) with new episodes; each round gives every env a
@@ -10,9 +11,10 @@ have run (then the result says it is short).
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import torch
@@ -56,6 +58,14 @@ class EvalResult:
     """What counted as a success (``RewardConfig.success_text``)."""
     iteration: int | None = None
     """The checkpoint evaluated: that of this training iteration (None: the run's last)."""
+    sampled: bool = False
+    """Actions sampled from the policy's Gaussian (as in training) instead of its mean."""
+    held: list[int] | None = None
+    """Per object, the successes with >= 2 fingertip pads within 2 cm of the target's surface
+    at the success step (``pads``; None: not measured)."""
+    nearest_pad: list[float | None] | None = None
+    """Per object, the median distance (m) of the nearest pad at the success steps (None
+    where no success)."""
 
     @property
     def overall(self) -> float:
@@ -96,6 +106,7 @@ def run_episodes(
     target_slots: torch.Tensor | None = None,
     watch: Sequence[int] | None = None,
     hold_finished: bool = False,
+    at_success: Callable[[torch.Tensor], None] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """One episode in every env from a fresh reset; returns (success (E,) bool, length (E,),
     target object id (E,), taken right after the reset), on the CPU.
@@ -104,7 +115,9 @@ def run_episodes(
     rollout ends when every env (or every env of ``watch``) has finished. ``target_slots`` (E,):
     the target slot of each env's episode (``force_targets``; -1: the env's own draw).
     ``hold_finished``: a finished env holds its last commands (``GraspTask.hold_action``)
-    instead of following the policy past its episode's end (videos: a lift stays lifted)."""
+    instead of following the policy past its episode's end (videos: a lift stays lifted).
+    ``at_success(mask)`` is called right after a step at which some episodes succeeded, with
+    (E,) bool (CPU) marking them, the env in that step's state."""
     E = env.num_envs
     success = torch.zeros(E, dtype=torch.bool)
     length = torch.zeros(E, dtype=torch.long)
@@ -125,7 +138,10 @@ def run_episodes(
             if on_step is not None:
                 on_step()
             done = td["next", "done"][:, 0].cpu() & ~finished
-            success |= done & td["next", "success"][:, 0].cpu()
+            succeeded = done & td["next", "success"][:, 0].cpu()
+            success |= succeeded
+            if at_success is not None and bool(succeeded.any()):
+                at_success(succeeded)
             length[~finished] += 1
             finished |= done
             if finished[watched].all():
@@ -144,12 +160,20 @@ def evaluate(
     max_rounds: int = MAX_ROUNDS,
     hold_tips: int | None = None,
     iteration: int | None = None,
-    out: str = "eval",
+    out: str | None = None,
     h_bar: float | None = None,
+    sample: bool = False,
+    pads: bool = False,
 ) -> EvalResult:
     """Evaluate the run's last checkpoint (or that of ``iteration``) on its object set (or
     ``objects``), on ``device`` (default: the run's), for the run's task; writes
-    ``per_object.csv`` and ``table.md`` in the run directory's folder ``out``.
+    ``per_object.csv`` and ``table.md`` in the run directory's folder ``out`` (default
+    ``eval``; ``eval-sampled`` with ``sample``).
+
+    ``sample``: actions sampled from the policy's Gaussian, as in training (the global torch
+    generator seeded with ``seed`` for the evaluation, then restored), instead of its mean.
+    ``pads``: also count, per object, the successes held by >= 2 fingertip pads within 2 cm of
+    the target's surface at the success step (with ``hold_tips = 0``: which lifts are tosses).
 
     Success is the run's (``reward.h_bar`` and ``reward.hold_tips`` of its config) unless
     ``h_bar`` or ``hold_tips`` is given: e.g. ``hold_tips = 2`` evaluates a run trained on any
@@ -164,6 +188,8 @@ def evaluate(
         raise TrainerError(f"episodes_per_object must be >= 1, got {episodes_per_object}")
     if max_rounds < 1:
         raise TrainerError(f"max_rounds must be >= 1, got {max_rounds}")
+    if out is None:
+        out = "eval-sampled" if sample else "eval"
     if not out or Path(out).name != out or out in (".", ".."):
         raise TrainerError(f"out {out!r}: give a folder name inside the run directory, e.g. eval")
     cfg, agent = load_agent(run_dir, device, iteration)
@@ -177,25 +203,85 @@ def evaluate(
         )
     cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, reward=reward))
     names = resolve_names(objects or cfg.env.objects, cfg.env.data_dir)
-    if cfg.env.task == "bin":
-        result = _evaluate_bin(
-            cfg, agent.actor, names, episodes_per_object, seed, max_envs, max_rounds
-        )
-    else:
-        result = _evaluate_lift(
-            cfg.env, agent.actor, names, episodes_per_object, seed, max_envs,
-            legacy=not cfg.run.random_streams,
-        )
+    collector = SuccessPads(len(names)) if pads else None
+    streams = RandomStreams(seed, legacy=not cfg.run.random_streams)
+    with _sampling(streams, cfg.env.device) if sample else contextlib.nullcontext():
+        if cfg.env.task == "bin":
+            result = _evaluate_bin(
+                cfg, agent.actor, names, episodes_per_object, seed, max_envs, max_rounds,
+                not sample, collector,
+            )
+        else:
+            result = _evaluate_lift(
+                cfg.env, agent.actor, names, episodes_per_object, seed, max_envs, not sample,
+                collector, legacy=not cfg.run.random_streams,
+            )
     result = dataclasses.replace(
-        result, success_text=cfg.env.reward.success_text(), iteration=iteration
+        result, success_text=cfg.env.reward.success_text(), iteration=iteration, sampled=sample
     )
+    if collector is not None:
+        result = dataclasses.replace(result, held=collector.held(),
+                                     nearest_pad=collector.nearest())
     write_eval(RunDir(Path(run_dir)), result, out)
     return result
 
 
+@contextlib.contextmanager
+def _sampling(streams: RandomStreams, device: str) -> Iterator[None]:
+    """The global torch generators (the policy's sampling) seeded with the ``actions`` stream of
+    the evaluation's seed inside, and restored after: a sampled evaluation repeats, and leaves
+    the caller's streams alone."""
+    where = torch.device(device)
+    devices = [where.index or 0] if where.type == "cuda" else []
+    with torch.random.fork_rng(devices=devices):
+        streams.seed_global_torch("actions")
+        yield
+
+
+class SuccessPads:
+    """Per object, the fingertip pads' distances to the target at the success steps
+    (``run_episodes(at_success=...)``), for held-or-tossed counts."""
+
+    def __init__(self, num_objects: int) -> None:
+        self.num_objects = num_objects
+        self.ids: list[torch.Tensor] = []
+        self.pads: list[torch.Tensor] = []
+
+    def hook(self, env: GraspTask, offset: int = 0) -> Callable[[torch.Tensor], None]:
+        """The ``at_success`` callback for ``env``, its object ids shifted by ``offset``."""
+        from trainer.grasps import keypoint_distances
+
+        def at_success(mask: torch.Tensor) -> None:
+            self.ids.append(env.target_objects().cpu()[mask] + offset)
+            self.pads.append(keypoint_distances(env).cpu()[mask, 1:])
+
+        return at_success
+
+    def _per_object(self) -> tuple[torch.Tensor, torch.Tensor]:
+        if not self.ids:
+            return torch.zeros(0, dtype=torch.long), torch.zeros(0, 5)
+        return torch.cat(self.ids), torch.cat(self.pads)
+
+    def held(self) -> list[int]:
+        """Per object: successes with >= 2 pads within 2 cm of the target's surface."""
+        from trainer.grasps.outcomes import HELD_DISTANCE, HELD_PADS
+
+        ids, pads = self._per_object()
+        held = (pads < HELD_DISTANCE).sum(-1) >= HELD_PADS
+        return torch.bincount(ids[held], minlength=self.num_objects).tolist()
+
+    def nearest(self) -> list[float | None]:
+        """Per object: the median distance (m) of the nearest pad at success (None: none)."""
+        ids, pads = self._per_object()
+        nearest = pads.amin(-1)
+        return [float(nearest[ids == k].median()) if bool((ids == k).any()) else None
+                for k in range(self.num_objects)]
+
+
 def _evaluate_lift(
     cfg: EnvConfig, actor: torch.nn.Module, names: list[str], episodes_per_object: int,
-    seed: int, max_envs: int, legacy: bool = False,
+    seed: int, max_envs: int, deterministic: bool = True, pads: SuccessPads | None = None,
+    legacy: bool = False,
 ) -> EvalResult:
     """legacy: seed the envs as runs before the derived random streams did
     (``trainer.randomness``)."""
@@ -209,7 +295,8 @@ def _evaluate_lift(
             cfg, objects=",".join(chunk), num_envs=episodes_per_object * len(chunk)
         )
         env = make_env(env_cfg, seed=RandomStreams(seed + start, legacy=legacy))
-        success, _, ids = run_episodes(env, actor)
+        hook = pads.hook(env, start) if pads is not None else None
+        success, _, ids = run_episodes(env, actor, deterministic, at_success=hook)
         for k in range(len(chunk)):
             episodes[start + k] += int((ids == k).sum())
             successes[start + k] += int(success[ids == k].sum())
@@ -264,6 +351,10 @@ def play_bins(
     return env, ids, slots
 
 
+def _metres(value: float | None) -> str:
+    return "" if value is None else f"{value:.4f}"
+
+
 def _listing(names: Sequence[str], most: int = 12) -> str:
     more = f", ... ({len(names)} in all)" if len(names) > most else ""
     return ", ".join(names[:most]) + more
@@ -287,7 +378,8 @@ def balanced_targets(assignment: torch.Tensor, counts: torch.Tensor) -> torch.Te
 
 def _evaluate_bin(
     cfg: TrainConfig, actor: torch.nn.Module, names: list[str], episodes_per_object: int,
-    seed: int, max_envs: int, max_rounds: int,
+    seed: int, max_envs: int, max_rounds: int, deterministic: bool = True,
+    pads: SuccessPads | None = None,
 ) -> EvalResult:
     env = run_bins(cfg, min(cfg.env.num_envs, max_envs), names)
     env.set_seed(seed)
@@ -299,7 +391,10 @@ def _evaluate_bin(
     rounds = 0
     while rounds < max_rounds and bool((episodes[held] < episodes_per_object).any()):
         slots = balanced_targets(assignment, episodes)
-        success, _, ids = run_episodes(env, actor, target_slots=slots)
+        success, _, ids = run_episodes(
+            env, actor, deterministic, target_slots=slots,
+            at_success=pads.hook(env) if pads is not None else None,
+        )
         episodes += torch.bincount(ids, minlength=len(names))
         successes += torch.bincount(ids[success], minlength=len(names))
         rounds += 1
@@ -320,17 +415,21 @@ def write_eval(run: RunDir, result: EvalResult, folder: str = "eval") -> None:
     out = run.path / folder
     out.mkdir(parents=True, exist_ok=True)
     task = [result.task, result.bin_objects or "", result.context, result.representation]
+    pads = result.held is not None and result.nearest_pad is not None
     with atomic_path(out / "per_object.csv") as tmp, open(tmp, "w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(["object", "episodes", "successes", "success_rate", "task",
-                         "bin_objects", "context", "representation"])
+                         "bin_objects", "context", "representation",
+                         *(["held_successes", "nearest_pad_median_m"] if pads else [])])
         for k, name in enumerate(result.names):
             rate = f"{result.rate(k):.4f}" if result.episodes[k] else ""
-            writer.writerow([name, result.episodes[k], result.successes[k], rate, *task])
+            extra = [] if not pads else [result.held[k], _metres(result.nearest_pad[k])]
+            writer.writerow([name, result.episodes[k], result.successes[k], rate, *task, *extra])
     checkpoint = ("the last checkpoint" if result.iteration is None
                   else f"the checkpoint of iteration {result.iteration}")
+    actions = "; actions sampled from the policy (as in training)" if result.sampled else ""
     lines = [
-        f"Success per target object: {result.describe()}; {checkpoint}.",
+        f"Success per target object: {result.describe()}; {checkpoint}{actions}.",
         "",
         *([f"Success: the target {result.success_text}.", ""] if result.success_text else []),
         f"| object | episodes | {result.label} |",
@@ -343,6 +442,14 @@ def write_eval(run: RunDir, result: EvalResult, folder: str = "eval") -> None:
         f"| **all ({sum(result.episodes)} episodes)** | {sum(result.episodes)} | "
         f"**{result.overall:.2f}** |"
     )
+    if pads:
+        lines += ["", "Successes held by two or more fingertip pads within 2 cm of the target at "
+                  "the success step, and the nearest pad's median distance then:", "",
+                  "| object | successes | held | nearest pad, median |", "|---|---:|---:|---:|"]
+        for k, name in enumerate(result.names):
+            near = result.nearest_pad[k]
+            near_text = "—" if near is None else f"{100 * near:.1f} cm"
+            lines.append(f"| {name} | {result.successes[k]} | {result.held[k]} | {near_text} |")
     if result.short:
         lines += ["", f"Fewer episodes than asked after {result.rounds} rounds: "
                   f"{', '.join(result.short)}."]

@@ -1,9 +1,6 @@
-"""A scripted fingertip pinch (thumb tip against index tip, at table height) on the small and
-flat Table I objects: can this hand lift the dice, the knife, the tuna can and the plate at all?
-
-The top grasp of ``trainer.scripted`` (palm down, fingers curling toward the palm) closes the
-fingertips beside or over a 1.6 cm dice or a knife lying flat (``causes.py``). Here the hand
-pinches instead, the way a person picks a coin:
+"""The fingertip pinch (family ``pinch``): thumb tip against index tip at table height, the way
+a person picks a coin, for the small and flat objects the top grasp closes beside or over (the
+dice, the knife, the tuna can; the plate at its rim). Measured in results/scripted-table1/.
 
 * **Joint targets.** Thumb rotated to ``thumb_rot`` (-1.29 rad: its tip then meets the index
   tip), ring and little finger curled away (-1.571), the middle finger curled away or moving with
@@ -25,53 +22,32 @@ pinches instead, the way a person picks a coin:
 * **The plate.** Wider than the hand opens (26 cm): the pinch point goes to its rim on the side
   toward the robot, ``rim_inset`` inside its outer radius, the thumb outside (sliding under the
   rim's lip) and the index inside, squeezing radially.
-* Phases: approach above the pinch pose (hand open), descend, close, lift ``lift``, hold 1 s.
-
-Each trial is classified from the target's trajectory as ``causes.py`` does: ``lifted`` (the
-env's success: lifted by 0.2 m), ``dropped`` (rose >= 2 cm, not to 0.2 m), ``no grip`` (never rose
-2 cm), ``pushed`` (moved > 2 cm sideways before the close began, here the end of the descent:
-in a pinch the first tip to arrive moves the object by design). Also recorded: the highest rise,
-and the lowest thumb / index pad (fingertip site) height above the table during the close.
-
-Run from the repository root with the Table I objects built in ``data/`` (one MuJoCo thread,
-one torch thread; ~20-40 s per variant on a busy 2-core machine):
-
-    python results/scripted-table1/pinch.py [--variants base,...] [--objects ...] [--trials 10]
-
-Prints a Markdown table per variant and writes ``pinch.csv`` beside this file (one row per
-variant and object). ``--grid`` adds a small geometry grid (pitch x clearance x squeeze). A
-variant is a script and EnvConfig overrides: the ``*noslip`` variants turn on MuJoCo's no-slip
-solver (``[physics] noslip_iterations``), ``impratio10`` stiffer friction (see the README).
+* Phases: approach above the pinch pose (hand open), descend, close, settle, lift ``lift``,
+  hold 1 s.
 """
 
 from __future__ import annotations
 
-import argparse
-import itertools
 import math
-import time
-from dataclasses import dataclass, replace
-from pathlib import Path
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 import torch
-from causes import outcome_rows, write_rows  # beside this file
 
 from geomgrasp.rotations import quat_to_matrix
-from trainer import constants as C
-from trainer.config import load_env_config
-from trainer.scripted import narrowest_horizontal, run_scripted_grasp, steer, target_box
-from trainer.tasks import GraspTask, make_env
+from trainer.grasps.geometry import narrowest_horizontal, steer, target_box
+from trainer.robots import sih
+from trainer.tasks import GraspTask
 
-OBJECTS = ("062_dice", "032_knife", "007_tuna_fish_can", "029_plate")
 RIM_MIN_WIDTH = 0.15
-"""Targets whose narrowest horizontal width exceeds this (the plate) are pinched at the rim."""
+"""Targets whose narrowest horizontal width (m) exceeds this (the plate) are pinched at the
+rim."""
 
 
 @dataclass(frozen=True)
 class Pinch:
-    """Timing (actions), joint targets (rad) and geometry (m, degrees) of the scripted pinch."""
+    """Timing (actions), joint targets (rad) and geometry (m, degrees) of the pinch."""
 
     approach_steps: int = 45
     descend_steps: int = 35
@@ -95,7 +71,8 @@ class Pinch:
     middle: str = "curled"
     """``curled`` (out of the way) or ``index`` (moves with the index finger)."""
     clearance: float = 0.003
-    """Lowest fingertip point above the table during the close."""
+    """Lowest fingertip point above the table during the close (negative: pressed into it,
+    the table holds the tips down)."""
     rim_inset: float = 0.015
     """Plate: pinch point this far inside the rim's outer radius."""
     handle: bool = False
@@ -110,6 +87,18 @@ class Pinch:
         return (self.approach_steps + self.descend_steps + self.close_steps + self.settle_steps
                 + self.lift_steps + self.hold_steps)
 
+    @property
+    def close_window(self) -> tuple[int, int]:
+        """Steps [start, end) in which the fingertips close."""
+        start = self.approach_steps + self.descend_steps
+        return start, start + self.close_steps
+
+    @property
+    def pushed_at(self) -> int:
+        """The step whose sideways displacement of the target tells *pushed*: the last of the
+        descent (in a pinch the first tip to arrive moves the object by design)."""
+        return self.close_window[0] - 1
+
     def joints(self, frac: float) -> np.ndarray:
         """Actuator targets (5,) at closing fraction ``frac`` (0 open, 1 closed)."""
         th = self.open[0] + frac * (self.closed[0] - self.open[0])
@@ -122,6 +111,31 @@ class Pinch:
         a, b = math.radians(self.pitch), math.radians(self.roll)
         return np.array([math.sin(b), math.cos(b) * math.cos(a), math.cos(b) * math.sin(a)])
 
+    def action(self, env: GraspTask, step: int, plan: dict) -> torch.Tensor:
+        """The action (E, 11) for every env at episode step ``step``; ``plan`` is filled at
+        step 0 (``plan_pinch``)."""
+        if step == 0:
+            plan.update(plan_pinch(env, self))
+        goal = plan["goal"].clone()
+        t0 = self.approach_steps
+        t1 = t0 + self.descend_steps
+        t2 = t1 + self.close_steps
+        t3 = t2 + self.settle_steps
+        frac = min(max((step - t1 + 1) / self.close_steps, 0.0), 1.0)
+        k = int(round(frac * (len(plan["fracs"]) - 1)))
+        goal[:, 2] = plan["height"][:, k]
+        if step < t0:
+            goal[:, 2] += self.hover
+        elif step < t1:
+            goal[:, 2] += self.hover * (1.0 - (step - t0 + 1) / self.descend_steps)
+        elif step >= t3:
+            goal[:, 2] += self.lift
+        act = torch.tensor(self.joints(frac), dtype=torch.float32)
+        hand = 2 * (act - env.robot.hand.open) / (env.robot.hand.closed - env.robot.hand.open) - 1
+        rate = self.lift_rate if step >= t3 else 1.0
+        return torch.cat([steer(env, goal, plan["rot"], rate), hand.expand(env.num_envs, 5)],
+                         dim=-1)
+
 
 class HandFK:
     """Palm-frame forward kinematics of the hand (the 1:1 couplings applied), from the model."""
@@ -129,23 +143,26 @@ class HandFK:
     def __init__(self, model: mujoco.MjModel) -> None:
         self.model = model
         self.data = mujoco.MjData(model)
-        self.adr = {n: int(model.joint(n).qposadr[0]) for n in C.SIH_JOINTS}
+        self.adr = {n: int(model.joint(n).qposadr[0]) for n in sih.JOINTS}
         self.palm = model.body("palm").id
         self.tip_geoms = [g for g in range(model.ngeom)
                           if model.geom_bodyid[g] in (model.body("th_distal").id,
                                                       model.body("if_distal").id)]
 
     def __call__(self, act: np.ndarray, down: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """(thumb pad, index pad) positions in the palm frame and the lowest fingertip-capsule
-        point along ``down`` (palm frame) for actuator targets ``act`` (5,)."""
-        driven = [joint for _, joint, _, _ in C.SIH_ACTUATORS]
+        """(thumb pad, index pad) positions (3,) in the palm frame and the lowest point (m) of
+        the fingertip capsules along ``down`` (palm frame) for actuator targets ``act`` (5,)."""
+        driven = [joint for _, joint, _, _ in sih.ACTUATORS]
         values = dict(zip(driven, act, strict=True))
-        values.update({follower: values[leader] for follower, leader in C.SIH_COUPLINGS})
+        values.update({follower: values[leader] for follower, leader in sih.COUPLINGS})
         for name, value in values.items():
             self.data.qpos[self.adr[name]] = value
         mujoco.mj_kinematics(self.model, self.data)
         rot, origin = self.data.xmat[self.palm].reshape(3, 3), self.data.xpos[self.palm]
-        local = lambda x: rot.T @ (x - origin)  # noqa: E731
+
+        def local(x: np.ndarray) -> np.ndarray:
+            return rot.T @ (x - origin)
+
         low = -np.inf
         for g in self.tip_geoms:
             axis = rot.T @ self.data.geom_xmat[g].reshape(3, 3)[:, 2]
@@ -160,7 +177,7 @@ def pinch_targets(
     env: GraspTask, rim_inset: float, handle: bool = False
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Per env: the pinch point (E, 3, world; its height unused), the horizontal squeeze
-    direction from the index pad to the thumb pad (E, 3) and the width to pinch (E,)."""
+    direction from the index pad to the thumb pad (E, 3) and the width to pinch (E,), m."""
     center, axes, half = target_box(env)
     narrow, squeeze = narrowest_horizontal(axes, half, 24)
     # The squeeze points (index -> thumb) roughly against the fingers; keep the fingers near
@@ -216,7 +233,7 @@ def plan_pinch(env: GraspTask, script: Pinch) -> dict:
     table = [fk(script.joints(f), down) for f in fracs]
     gaps = np.array([np.linalg.norm(t[0] - t[1]) for t in table])
     last = int(gaps.argmin()) + 1  # past it the commanded tips would pass through each other
-    keypoint = np.array(C.SIH_PALM_KEYPOINT)
+    keypoint = np.array(sih.PALM_KEYPOINT)
     # Closing fraction at which the pad gap equals each target's width (contact).
     contact = np.interp(-width.numpy(), -gaps[:last], fracs[:last])  # gaps fall with frac
     squeeze_palm = table[0][0] - table[0][1]
@@ -234,132 +251,3 @@ def plan_pinch(env: GraspTask, script: Pinch) -> dict:
     goal = point + offset
     return {"goal": goal, "rot": rot, "height": torch.tensor(height, dtype=torch.float32),
             "fracs": fracs}
-
-
-def pinch_action(env: GraspTask, script: Pinch, step: int, plan: dict) -> torch.Tensor:
-    """The action (E, 11) for every env at episode step ``step``; ``plan`` is filled at step 0
-    (``plan_pinch``)."""
-    if step == 0:
-        plan.update(plan_pinch(env, script))
-    goal = plan["goal"].clone()
-    t0 = script.approach_steps
-    t1 = t0 + script.descend_steps
-    t2 = t1 + script.close_steps
-    t3 = t2 + script.settle_steps
-    frac = min(max((step - t1 + 1) / script.close_steps, 0.0), 1.0)
-    k = int(round(frac * (len(plan["fracs"]) - 1)))
-    goal[:, 2] = plan["height"][:, k]
-    if step < t0:
-        goal[:, 2] += script.hover
-    elif step < t1:
-        goal[:, 2] += script.hover * (1.0 - (step - t0 + 1) / script.descend_steps)
-    elif step >= t3:
-        goal[:, 2] += script.lift
-    act = torch.tensor(script.joints(frac), dtype=torch.float32)
-    hand = 2 * (act - env.hand_open) / (env.hand_closed - env.hand_open) - 1
-    rate = script.lift_rate if step >= t3 else 1.0
-    return torch.cat([steer(env, goal, plan["rot"], rate), hand.expand(env.num_envs, 5)], dim=-1)
-
-
-def run_pinch(env: GraspTask, script: Pinch, objects: tuple[str, ...], name: str) -> list[dict]:
-    """Reset, run the pinch in every env, classify every trial; one row per object."""
-    track, tips = [], []
-
-    def record(_: int) -> None:
-        track.append(env.target_pose()[0].clone())
-        tips.append(env.kinematics.forward(env.backend.qpos).site_pos[:, 1:3, 2].clone())
-
-    lifted = run_scripted_grasp(env, script, on_step=record, action_fn=pinch_action)
-    pos, tip_z = torch.stack(track), torch.stack(tips)  # (T, E, 3), (T, E, 2)
-    t1 = script.approach_steps + script.descend_steps
-    t2 = t1 + script.close_steps
-    # pushed: by the end of the descent (in a pinch the first tip to arrive moves the object)
-    ids = env.target_objects()
-    rows = outcome_rows(name, objects, ids, pos, lifted, t1 - 1)
-    rise = (pos[:, :, 2] - pos[0, :, 2]).amax(0)
-    for k, row in enumerate(rows):
-        m = ids == k
-        row.update({
-            "median_rise_cm": round(float(rise[m].median()) * 100, 1),
-            "thumb_pad_min_cm": round(float(tip_z[t1:t2, m, 0].min()) * 100, 1),
-            "index_pad_min_cm": round(float(tip_z[t1:t2, m, 1].min()) * 100, 1),
-        })
-    return rows
-
-
-BASE = Pinch()
-NOSLIP = {"physics": {"noslip_iterations": 5}}
-"""MuJoCo's no-slip solver: removes the creep of the soft frictional contacts."""
-# name -> (EnvConfig overrides, script)
-VARIANTS: dict[str, tuple[dict, Pinch]] = {
-    "base": ({}, BASE),
-    "middle": ({}, replace(BASE, middle="index")),
-    "pitch30": ({}, replace(BASE, pitch=30.0)),
-    "pitch10": ({}, replace(BASE, pitch=10.0)),
-    "press": ({}, replace(BASE, clearance=-0.003)),
-    "high": ({}, replace(BASE, clearance=0.008)),
-    "soft": ({}, replace(BASE, closed=(0.6, -1.0))),
-    "press6": ({}, replace(BASE, clearance=-0.006)),
-    "press+follow": ({}, replace(BASE, clearance=-0.003, follow=True)),
-    "press6+follow": ({}, replace(BASE, clearance=-0.006, follow=True)),
-    "pitch30+press": ({}, replace(BASE, pitch=30.0, clearance=-0.003)),
-    "pitch30+press+follow": ({}, replace(BASE, pitch=30.0, clearance=-0.003, follow=True)),
-    "press+middle": ({}, replace(BASE, clearance=-0.003, middle="index")),
-    "press6+handle": ({}, replace(BASE, clearance=-0.006, handle=True)),
-    "press10+handle": ({}, replace(BASE, clearance=-0.010, handle=True)),
-    "press6+follow+handle": ({}, replace(BASE, clearance=-0.006, follow=True, handle=True)),
-    "noslip": (NOSLIP, BASE),
-    "press6+noslip": (NOSLIP, replace(BASE, clearance=-0.006)),
-    "press6+handle+noslip": (NOSLIP, replace(BASE, clearance=-0.006, handle=True)),
-    "middle+noslip": (NOSLIP, replace(BASE, middle="index")),
-    "impratio10": ({"physics": {"impratio": 10.0}}, BASE),
-}
-GRID = {"pitch": (15.0, 20.0, 25.0), "clearance": (-0.002, 0.002, 0.006),
-        "closed": ((0.6, -1.0), (0.8, -1.2), (1.0, -1.4))}
-
-
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--variants", default=",".join(VARIANTS))
-    parser.add_argument("--objects", default=",".join(OBJECTS))
-    parser.add_argument("--trials", type=int, default=10)
-    parser.add_argument("--data-dir", type=Path, default=Path("data"))
-    parser.add_argument("--grid", action="store_true", help="also scan pitch x clearance x squeeze")
-    parser.add_argument("--out", type=Path, default=Path(__file__).with_name("pinch.csv"))
-    parser.add_argument("--backend", default="cpu", choices=("cpu", "warp"),
-                        help="warp: MuJoCo Warp on its CPU device (kernels compile on first use)")
-    args = parser.parse_args()
-    torch.set_num_threads(1)
-    objects = tuple(args.objects.split(","))
-    variants = {n: VARIANTS[n] for n in args.variants.split(",") if n}
-    if args.grid:
-        for values in itertools.product(*GRID.values()):
-            params = dict(zip(GRID, values, strict=True))
-            variants["grid_" + "_".join(f"{k}={v}" for k, v in params.items())] = (
-                {}, replace(BASE, **params))
-    all_rows: list[dict] = []
-    for name, (overrides, script) in variants.items():
-        t = time.perf_counter()
-        cfg = load_env_config(
-            num_envs=args.trials * len(objects), objects=",".join(objects),
-            data_dir=args.data_dir, representation="com", nthread=1, backend=args.backend,
-            **overrides,
-        )
-        env = make_env(cfg, seed=0)  # the same initial states for every variant
-        rows = run_pinch(env, script, objects, name)
-        env.close()
-        all_rows += rows
-        print(f"\n### {name} ({sum(r['lifted'] for r in rows)}/"
-              f"{sum(r['trials'] for r in rows)} lifted, {time.perf_counter() - t:.0f} s)\n")
-        print("| object | lifted | dropped | no grip | pushed | max rise cm | thumb / index "
-              "pad min cm |")
-        print("|---|---:|---:|---:|---:|---:|---:|")
-        for r in rows:
-            print(f"| {r['object']} | {r['lifted']} | {r['dropped']} | {r['no_grip']} | "
-                  f"{r['pushed']} | {r['max_rise_cm']} | {r['thumb_pad_min_cm']} / "
-                  f"{r['index_pad_min_cm']} |", flush=True)
-        write_rows(args.out, all_rows)
-
-
-if __name__ == "__main__":
-    main()

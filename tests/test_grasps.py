@@ -1,0 +1,180 @@
+"""Scripted grasp families as package code: the registry and its one-line errors, the outcome
+classification on synthetic recorded trajectories, and the one runner for every family."""
+
+from __future__ import annotations
+
+import csv
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+import trainer.cli
+from geomprep.config import Config
+from trainer.errors import TrainerError
+from trainer.grasps import (
+    FAMILIES,
+    OUTCOMES,
+    GraspTrajectory,
+    Pinch,
+    TopGrasp,
+    classify,
+    family,
+    family_variants,
+    measure,
+    outcome_rows,
+    record_grasp,
+    run_scripted_grasp,
+)
+
+
+def synthetic_trajectory() -> tuple[GraspTrajectory, int]:
+    """Six trials over 10 steps, ``pushed_at`` = 4: one of each outcome, plus the edge cases
+    (pushed only after ``pushed_at``: no grip; pushed and then rose: dropped)."""
+    T, E, pushed_at = 10, 6, 4
+    pos = torch.zeros(T, E, 3)
+    pos[..., 2] = 0.05  # resting height
+    steps = torch.arange(T, dtype=torch.float32)
+    pos[:, 0, 2] += 0.03 * steps  # 0: rises 0.27 m, the env's success at step 7
+    pos[:, 1, 2] += torch.where(steps < 5, 0.01 * steps, 0.0)  # 1: rose 4 cm, fell back
+    pos[:, 2, 0] += 0.001 * steps  # 2: crept 9 mm, never rose: no grip
+    pos[2:, 3, 1] += 0.03  # 3: knocked 3 cm before the grip, never rose: pushed
+    pos[6:, 4, 0] += 0.05  # 4: knocked only after pushed_at: no grip
+    pos[2:, 5, 0] += 0.03  # 5: knocked, then rose 2.5 cm: dropped
+    pos[6:, 5, 2] += 0.025
+    success = torch.zeros(T, E, dtype=torch.bool)
+    success[7:, 0] = True
+    pads = torch.full((T, E, 5), 0.05)
+    pads[5:8, :, :2] = 0.004  # thumb and index pads low during the close (steps 5-7)
+    distance = torch.full((E, 6), float("nan"))
+    distance[0] = torch.tensor([0.03, 0.001, 0.0, 0.05, 0.05, 0.05])  # two pads on it: held
+    return GraspTrajectory(pos, pads, success, distance), pushed_at
+
+
+def test_classify_tells_each_outcome_from_the_trajectory() -> None:
+    trajectory, pushed_at = synthetic_trajectory()
+    codes = classify(trajectory, pushed_at)
+    assert [OUTCOMES[c] for c in codes] == [
+        "lifted", "dropped", "no_grip", "pushed", "no_grip", "dropped",
+    ]
+    # A rise of 2 cm is measured from the first step, not from the lowest point.
+    lower = GraspTrajectory(trajectory.target_pos.clone(), trajectory.pad_height,
+                            trajectory.success, trajectory.success_distance)
+    lower.target_pos[0, 1, 2] -= 0.05
+    assert OUTCOMES[classify(lower, pushed_at)[1]] == "dropped"
+    with pytest.raises(ValueError, match="outside the 10 recorded steps"):
+        classify(trajectory, 10)
+
+
+def test_outcome_rows_count_per_object() -> None:
+    trajectory, pushed_at = synthetic_trajectory()
+    ids = torch.tensor([0, 0, 1, 1, 1, 0])
+    rows = outcome_rows(["a", "b", "absent"], ids, trajectory, (5, 8), pushed_at,
+                        family="top", variant="base")
+    assert [r["object"] for r in rows] == ["a", "b"]  # no trial of "absent": no row
+    a, b = rows
+    assert (a["family"], a["variant"], a["trials"]) == ("top", "base", 3)
+    assert [a[o] for o in OUTCOMES] == [1, 2, 0, 0]
+    assert [b[o] for o in OUTCOMES] == [0, 0, 2, 1]
+    assert a["max_rise_cm"] == 27.0 and a["median_rise_cm"] == 4.0
+    assert a["thumb_pad_min_cm"] == 0.4 and a["index_pad_min_cm"] == 0.4
+    assert a["held_lifts"] == 1 and a["nearest_pad_median_cm"] == 0.0
+    assert b["held_lifts"] == 0 and b["nearest_pad_median_cm"] == ""
+
+
+def test_registry_and_its_one_line_errors() -> None:
+    assert {"top", "pinch"} <= set(FAMILIES)
+    assert family("top").variants["base"].script == TopGrasp()
+    assert family("pinch").variants["base"].script == Pinch()
+    noslip = family_variants("pinch", ["press6+handle+noslip"])["press6+handle+noslip"]
+    assert noslip.script == Pinch(clearance=-0.006, handle=True)
+    assert noslip.env == {"physics": {"noslip_iterations": 5}}
+    # The top grid is results/scripted-table1/causes-grid.csv's: 108 geometries, named alike.
+    grid = family_variants("top", grid=True)
+    assert len(grid) == 108
+    assert grid["d0.13_l-0.05_t0.4_c0.016"].script == TopGrasp(
+        grasp_depth=0.13, lateral=-0.05, thumb_closed=0.4, palm_clearance=0.016
+    )
+    for call, text in [
+        (lambda: family("palm"), "unknown grasp family 'palm': choose one of top, pinch"),
+        (lambda: family_variants("pinch", ["base", "press7"]),
+         "unknown variant 'press7' of grasp family 'pinch'"),
+    ]:
+        with pytest.raises(TrainerError) as info:
+            call()
+        assert str(info.value).startswith(text) and "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize(
+    "argv, expected",
+    [
+        (["--family", "palm"], "error: unknown grasp family 'palm': choose one of top, pinch"),
+        (["--objects", "builtin_nothing"], "error: "),
+        (["--trials", "0"], "error: --trials 0: must be >= 1"),
+    ],
+)
+def test_grasp_command_errors_are_one_line(
+    argv: list[str], expected: str, builtin_data: Config, monkeypatch: pytest.MonkeyPatch,
+    capsys,  # noqa: ANN001
+) -> None:
+    monkeypatch.setattr(sys, "argv", ["trainer", "grasp", "--data-dir",
+                                      str(builtin_data.data_dir), *argv])
+    with pytest.raises(SystemExit) as exit_info:
+        trainer.cli.main()
+    assert exit_info.value.code == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(expected) and "\n" not in err
+    if "builtin_nothing" in argv:
+        assert "builtin_nothing" in err
+
+
+def test_recording_does_not_change_the_run(builtin_data: Config) -> None:
+    """One runner for every family: recording the trajectory changes nothing of the run (the
+    same lifts as an unrecorded run of the same initial states), and a lift classifies as
+    lifted, held by two pads."""
+    from trainer.config import load_env_config
+    from trainer.tasks import make_env
+
+    cfg = load_env_config(num_envs=2, objects="builtin_cylinder", representation="com",
+                          data_dir=builtin_data.data_dir)
+    env = make_env(cfg, seed=11)
+    plain = run_scripted_grasp(env, TopGrasp())
+    qpos = env.backend.qpos.clone()
+    env.close()
+    env = make_env(cfg, seed=11)
+    trajectory = record_grasp(env, TopGrasp())
+    assert torch.equal(env.backend.qpos, qpos)
+    env.close()
+    T = TopGrasp().total_steps
+    assert trajectory.target_pos.shape == (T, 2, 3) and trajectory.pad_height.shape == (T, 2, 5)
+    assert torch.equal(trajectory.lifted, plain) and bool(plain.any())
+    codes = classify(trajectory, TopGrasp().pushed_at)
+    assert all(OUTCOMES[c] == "lifted" for c in codes[plain])
+    assert not trajectory.success_distance[plain].isnan().any()
+    assert torch.isnan(trajectory.success_distance[~plain]).all()
+
+
+def test_pinch_family_runs_and_writes_rows(builtin_data: Config, tmp_path: Path,
+                                          monkeypatch: pytest.MonkeyPatch, capsys) -> None:  # noqa: ANN001
+    """``trainer grasp --family pinch``: the pinch plans from the model's hand kinematics, runs
+    in the same runner and classifies every trial once; the CSV has a row per object."""
+    out = tmp_path / "pinch.csv"
+    monkeypatch.setattr(sys, "argv", [
+        "trainer", "grasp", "--family", "pinch", "--objects", "builtin_dice,builtin_box",
+        "--trials", "2", "--data-dir", str(builtin_data.data_dir), "--out", str(out),
+    ])
+    trainer.cli.main()
+    printed = capsys.readouterr().out
+    assert "### pinch base (" in printed and "| builtin_dice |" in printed
+    rows = list(csv.DictReader(out.read_text().splitlines()))
+    assert [r["object"] for r in rows] == ["builtin_dice", "builtin_box"]
+    for row in rows:
+        assert row["family"] == "pinch" and row["variant"] == "base" and row["trials"] == "2"
+        assert sum(int(row[o]) for o in OUTCOMES) == 2
+    # The same trials again (seed 0): the same outcomes, from the function the command calls.
+    again = measure("pinch", "base", family("pinch").variants["base"],
+                    ["builtin_dice", "builtin_box"], 2, data_dir=builtin_data.data_dir)
+    assert [[r[o] for o in OUTCOMES] for r in again] == [
+        [int(r[o]) for o in OUTCOMES] for r in rows
+    ]
