@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -64,7 +65,15 @@ def test_changed_keys_are_dotted_and_sorted() -> None:
     assert changed_keys(a, b) == ["env.reward.h_bar", "run.seed", "x"]
 
 
-def test_stop_signals_defer_the_signal_to_the_end() -> None:
+@pytest.fixture
+def interactive_sigint() -> Iterator[None]:
+    """SIGINT as in an interactive process (pytest-xdist's workers ignore it)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_stop_signals_defer_the_signal_to_the_end(interactive_sigint: None) -> None:
     seen: list[int] = []
     previous = signal.signal(signal.SIGTERM, lambda signum, frame: seen.append(signum))
     try:
@@ -80,6 +89,11 @@ def test_stop_signals_defer_the_signal_to_the_end() -> None:
             pass
         quiet.reraise()  # nothing received: nothing delivered
         assert seen == [signal.SIGTERM] * 2
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # an ignored signal stays ignored
+        with StopSignals() as background:
+            os.kill(os.getpid(), signal.SIGINT)
+            assert background.received is None
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
     finally:
         signal.signal(signal.SIGTERM, previous)
 
@@ -184,7 +198,8 @@ def test_sigterm_stops_a_run_with_a_checkpoint_and_resume_goes_on_bit_for_bit(
 
 
 def test_ctrl_c_stops_a_run_with_a_checkpoint_then_interrupts(
-    builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    interactive_sigint: None,
 ) -> None:
     """In the process itself: SIGINT during iteration 1 ends the run after it (checkpoint
     written), then raises KeyboardInterrupt as Ctrl-C does."""

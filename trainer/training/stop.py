@@ -19,7 +19,8 @@ class StopSignals:
     handlers are back, and ``reraise`` delivers the signal to them, so a stopped run then ends
     as the signal would have ended it (click's "aborted" for Ctrl-C, termination for SIGTERM).
 
-    Only the main thread can take signals: elsewhere this does nothing."""
+    Only the main thread can take signals: elsewhere this does nothing; a signal the process
+    ignores (``SIG_IGN``) is left ignored."""
 
     def __init__(self) -> None:
         self.received: signal.Signals | None = None
@@ -28,7 +29,10 @@ class StopSignals:
     def __enter__(self) -> StopSignals:
         if threading.current_thread() is threading.main_thread():
             for sig in STOP_SIGNALS:
-                self._previous[sig] = signal.signal(sig, self._handle)
+                # An ignored signal stays ignored: a run started in the background by a
+                # non-interactive shell (``cmd &``) must not start answering Ctrl-C.
+                if signal.getsignal(sig) is not signal.SIG_IGN:
+                    self._previous[sig] = signal.signal(sig, self._handle)
         return self
 
     def __exit__(
