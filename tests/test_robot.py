@@ -190,3 +190,124 @@ def test_robot_commands_and_hold_action(kind: str) -> None:
     else:
         assert mocap_pos is None and mocap_quat is None
         assert not torch.equal(ctrl[:, robot.arm_actuators], home.ctrl[robot.arm_actuators])
+
+
+# --- The link hulls (robot.hand_geometry = "hulls") ------------------------------------------
+
+
+def _hull_model(kind: str, **robot: object) -> mujoco.MjModel:
+    cfg = load_env_config(robot={"kind": kind, "hand_geometry": "hulls", **robot})
+    return build_scene(cfg, Scene(num_slots=0), []).compile()
+
+
+@pytest.fixture(scope="module")
+def hulls() -> mujoco.MjModel:
+    return _hull_model("floating")
+
+
+def _signed_distance(model: mujoco.MjModel, data: mujoco.MjData, body: str,
+                     point: np.ndarray) -> float:
+    """Signed distance (m; negative inside) of a world ``point`` (3,) to the hull geom of
+    ``body``: the largest of its face planes' signed distances (exact inside the hull and
+    outside it opposite a face, a lower bound near an edge)."""
+    from scipy.spatial import ConvexHull
+
+    (geom,) = np.flatnonzero(model.geom_bodyid == model.body(body).id)
+    assert model.geom_type[geom] == mujoco.mjtGeom.mjGEOM_MESH
+    mesh = model.geom_dataid[geom]
+    start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
+    hull = ConvexHull(model.mesh_vert[start : start + count].astype(np.float64))
+    local = data.geom_xmat[geom].reshape(3, 3).T @ (point - data.geom_xpos[geom])
+    return float((hull.equations[:, :3] @ local + hull.equations[:, 3]).max())
+
+
+def test_hull_hand_compiles_for_both_robots_with_the_capsules_bits_and_material() -> None:
+    """Every finger and thumb link collides as one mesh geom from ``sih_hulls.json``; the palm
+    stays the box; the meshes carry the capsules' collision bits and contact material."""
+    for kind in ROBOTS:
+        capsules, meshes = _model(kind), _hull_model(kind)
+        for body in sih.HULL_OF:
+            (cap,) = np.flatnonzero(capsules.geom_bodyid == capsules.body(body).id)
+            (geom,) = np.flatnonzero(meshes.geom_bodyid == meshes.body(body).id)
+            assert meshes.geom_type[geom] == mujoco.mjtGeom.mjGEOM_MESH
+            assert capsules.geom_type[cap] == mujoco.mjtGeom.mjGEOM_CAPSULE
+            for field in ("geom_contype", "geom_conaffinity", "geom_friction", "geom_solref",
+                          "geom_solimp", "geom_condim", "geom_priority"):
+                np.testing.assert_array_equal(getattr(meshes, field)[geom],
+                                              getattr(capsules, field)[cap], err_msg=field)
+            assert meshes.body(body).mass == pytest.approx(capsules.body(body).mass)
+        (palm,) = np.flatnonzero(meshes.geom_bodyid == meshes.body("palm").id)
+        assert meshes.geom_type[palm] == mujoco.mjtGeom.mjGEOM_BOX
+        assert meshes.nmesh == len(sih.HULL_OF) == 11
+
+
+def test_fingertip_sites_lie_on_the_distal_pads(hulls: mujoco.MjModel) -> None:
+    """At q = 0 each fingertip site is within 1 mm of its distal hull's surface (sih_hand.md
+    section 10 (a): -0.05 to -0.16 mm; the little finger +0.86 mm, its pad under-sampled)."""
+    data = mujoco.MjData(hulls)
+    mujoco.mj_forward(hulls, data)
+    expected = {"if": -0.00013, "mf": -0.00016, "rf": -0.00013, "lf": 0.00086, "th": -0.00005}
+    for finger, value in expected.items():
+        distal = "th_distal" if finger == "th" else f"{finger}_distal"
+        d = _signed_distance(hulls, data, distal, data.site(f"tip_{finger}").xpos)
+        assert abs(d) < 0.001 and d == pytest.approx(value, abs=0.0001), (finger, d)
+
+
+def test_joint_centres_lie_inside_both_adjacent_hulls(hulls: mujoco.MjModel) -> None:
+    """Every hinge's anchor is inside the hull of its own link and (except where the parent is
+    the palm box) of the parent link: the links meet at
+    the joints as the meshes do (sih_hand.md section 10 (b): 5.6-7.9 mm deep at q = 0).
+    At rest, half and fully closed."""
+    data = mujoco.MjData(hulls)
+    for fraction in (0.0, 0.5, 1.0):
+        for name in sih.JOINTS:
+            lo, hi = hulls.joint(name).range  # one end is 0 (open), the other closed
+            data.qpos[hulls.joint(name).qposadr[0]] = fraction * (lo if lo < 0 else hi)
+        mujoco.mj_forward(hulls, data)
+        for name in sih.JOINTS:
+            joint = hulls.joint(name)
+            body = hulls.body(int(joint.bodyid[0]))
+            parent = hulls.body(int(body.parentid[0]))
+            for link in (body.name, parent.name):
+                if link == "palm":
+                    continue
+                d = _signed_distance(hulls, data, link, data.joint(name).xanchor)
+                assert d < -0.004, (fraction, name, link, d)
+
+
+@pytest.mark.parametrize("kind", ["ur5e", "floating"])
+def test_hull_hand_at_home_touches_nothing_of_itself(kind: str) -> None:
+    """In the home pose (open, thumb opposed), after 50 physics steps holding it, no hand geom
+    touches another (neighbouring fingers are 5-7 mm apart; the self-collision exclusions
+    hold), and the hand's joints stay where they were put."""
+    cfg = load_env_config(robot={"kind": kind, "hand_geometry": "hulls"})
+    robot = make_robot(cfg.robot)
+    model = _hull_model(kind)
+    robot.index(model, torch.device("cpu"))
+    home = robot.home(model)
+    data = mujoco.MjData(model)
+    data.qpos[:] = home.qpos.numpy()
+    data.ctrl[:] = home.ctrl.numpy()
+    mocap_pos, mocap_quat = robot.mocap(home.keypoint[None], home.rot[None])
+    if mocap_pos is not None:
+        data.mocap_pos[:] = mocap_pos[0].numpy()
+        data.mocap_quat[:] = mocap_quat[0].numpy()
+    hand = {model.body(n).id for n in ("palm", *sih.HULL_OF)}
+    for _ in range(50):
+        mujoco.mj_step(model, data)
+    touching = [
+        (model.body(model.geom_bodyid[c.geom1]).name, model.body(model.geom_bodyid[c.geom2]).name)
+        for c in data.contact[: data.ncon]
+        if model.geom_bodyid[c.geom1] in hand and model.geom_bodyid[c.geom2] in hand
+    ]
+    assert not touching
+    q = data.qpos[robot.hand_qpos.numpy()]
+    np.testing.assert_allclose(q, home.qpos[robot.hand_qpos].numpy(), atol=0.02)
+
+
+def test_hand_joint_damping_is_a_knob_with_todays_default(floating: mujoco.MjModel) -> None:
+    """``[robot] hand_joint_damping`` sets the 11 hand joints' damping; the default is 1.0."""
+    dofs = [floating.joint(n).dofadr[0] for n in sih.JOINTS]
+    np.testing.assert_array_equal(floating.dof_damping[dofs], sih.JOINT_DAMPING)
+    model = _hull_model("floating", hand_joint_damping=0.1)
+    np.testing.assert_allclose(model.dof_damping[dofs], 0.1)

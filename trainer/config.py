@@ -43,6 +43,7 @@ on ``cpu`` Warp's CPU device, slow but the same code), from ``pip install -e ".[
 CONTEXTS = ("none", "bbox")
 REWARDS = ("sdf", "com", "none")
 ROBOTS = ("ur5e", "floating")
+HAND_GEOMETRIES = ("capsules", "hulls")
 
 
 class _Checked(Checked):
@@ -120,6 +121,14 @@ class RobotConfig(_Checked):
     hand_kp: float = bounded(20.0, ge=0)
     hand_forcerange: float = bounded(5.0, gt=0)
     """Hand servo torque limit (N·m); the real SIH servos give about 0.75 N·m."""
+    hand_geometry: str = bounded("capsules", choices=HAND_GEOMETRIES)
+    """Collision shapes of the 11 finger and thumb links: ``capsules`` (our estimate of the link
+    sizes) or ``hulls`` (the convex hulls of the published link meshes,
+    ``trainer/robots/sih_hulls.json``). The palm is a box either way."""
+    hand_joint_damping: float = bounded(1.0, ge=0)
+    """Damping of the 11 hand joints (N·m·s/rad). 1.0 is the dexterity MJCF's class default; the
+    authors' URDF has 0.1. At a 0.75 N·m servo limit, 1.0 caps a finger's closing speed at
+    0.75 rad/s (issue 33)."""
     home_hand_height: float = bounded(0.28, gt=0)
     """Palm keypoint height above the table at reset (m)."""
     pos_step: float = bounded(0.02, ge=0)

@@ -2,16 +2,23 @@
 (``sih_hand.md``), its MJCF built in code, and its drives (how the hand's share of an action
 becomes actuator targets).
 
-Collision geometry is capsules and a box of the real link sizes (the published meshes are
-binary STLs we do not ship), tagged with the ``hand`` contact material
-(``geomgrasp.materials``). Frames: the palm body's frame is the SIH palm frame, fingers along
-+z, palmar side +y. Fingers sit at their physical x (see the x-mirror note below).
+Collision geometry (``[robot] hand_geometry``): ``capsules`` of the real link sizes (the
+default), or ``hulls``: each finger and thumb link the convex hull of its published visual mesh
+(``sih_hulls.json`` beside this module; its ``source`` and ``about`` say where from and how).
+The palm is a box either way (no palm mesh was readable). Every collision geom is tagged with the
+``hand`` contact material (``geomgrasp.materials``). Frames: the palm body's frame is the SIH
+palm frame, fingers along +z, palmar side +y. Fingers sit at their physical x (see the x-mirror
+note below).
 
 Drives: 5 position actuators (``ACTUATORS``) on the leading joints, the other joints following
 by 1:1 equality couplings (``COUPLINGS``). Action value -1 commands a DoF open, +1 closed.
 """
 
 from __future__ import annotations
+
+import functools
+import json
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -45,6 +52,7 @@ THUMB_FLEX_RANGE = (0.0, 1.571)
 PALM_KEYPOINT = (0.0, 0.018, 0.09)
 """The ``palm`` site (palm frame, m): the point a robot's hand-pose command moves."""
 JOINT_DAMPING = 1.0
+"""The dexterity MJCF's class default (N·m·s/rad); ``[robot] hand_joint_damping`` sets it."""
 JOINT_ARMATURE = 0.01
 
 JOINTS = (
@@ -90,6 +98,28 @@ PALM_HALF = (0.048, 0.018, 0.0625)
 PALM_CENTER = (-0.006, 0.008, 0.0625)
 HAND_RGBA = (0.25, 0.25, 0.28, 1.0)
 
+HULLS_FILE = Path(__file__).with_name("sih_hulls.json")
+"""The link hulls (package data): vertices (m) in each link body's frame, the body at its
+physical x, so they go into the bodies built here unchanged (no ``xml_frame_shift_m``)."""
+HULL_OF = {
+    **{f"{f}_{part}": f"{f}_{part}" for f in FINGERS for part in ("proximal", "distal")},
+    "th_proximal": "th_proximal_without_shaft",
+    "th_inter": "th_inter",
+    "th_distal": "th_distal",
+}
+"""Body -> hull entry. The thumb base uses the hull without its rotation shaft: the shaft turns
+inside the palm, and the full hull spans a wedge of air between the housing and the shaft's end,
+partly outside the palm box (sih_hand.md section 10, "Thumb shaft")."""
+
+
+@functools.cache
+def hull_vertices() -> dict[str, np.ndarray]:
+    """Body name -> (V, 3) hull vertices (m) in that body's frame, for the 11 hand links."""
+    data = json.loads(HULLS_FILE.read_text())
+    entries = {**data["links"], **data["alternatives"]}
+    return {body: np.asarray(entries[hull]["vertices"], dtype=np.float64)
+            for body, hull in HULL_OF.items()}
+
 
 def _capsule(
     spec: mujoco.MjSpec,
@@ -107,6 +137,18 @@ def _capsule(
     _hand_contact(spec, geom)
 
 
+def _hull(spec: mujoco.MjSpec, body: mujoco.MjsBody, mass: float) -> None:
+    """The link's hull (``hull_vertices``) as a mesh geom of ``mass`` (kg) at the body origin."""
+    mesh = spec.add_mesh()
+    mesh.name = f"hull_{body.name}"
+    mesh.uservert = hull_vertices()[body.name].ravel()
+    geom = body.add_geom()
+    geom.type = mujoco.mjtGeom.mjGEOM_MESH
+    geom.meshname = mesh.name
+    geom.mass = mass
+    _hand_contact(spec, geom)
+
+
 def _hand_contact(spec: mujoco.MjSpec, geom: mujoco.MjsGeom) -> None:
     geom.contype = BIT_HAND
     geom.conaffinity = BIT_STATIC | BIT_OBJECT | BIT_HAND
@@ -115,7 +157,11 @@ def _hand_contact(spec: mujoco.MjSpec, geom: mujoco.MjsGeom) -> None:
 
 
 def _hinge(
-    body: mujoco.MjsBody, name: str, axis: tuple[float, float, float], limits: tuple[float, float]
+    body: mujoco.MjsBody,
+    name: str,
+    axis: tuple[float, float, float],
+    limits: tuple[float, float],
+    damping: float,
 ) -> None:
     joint = body.add_joint()
     joint.name = name
@@ -123,7 +169,7 @@ def _hinge(
     joint.axis = axis
     joint.range = limits
     joint.limited = mujoco.mjtLimited.mjLIMITED_TRUE
-    joint.damping = (JOINT_DAMPING, 0.0, 0.0)
+    joint.damping = (damping, 0.0, 0.0)
     joint.armature = JOINT_ARMATURE
 
 
@@ -134,13 +180,15 @@ def _link(
     joint: str,
     axis: tuple[float, float, float],
     limits: tuple[float, float],
+    damping: float,
 ) -> mujoco.MjsBody:
-    """A gravity-compensated child body turning on one hinge at its origin."""
+    """A gravity-compensated child body turning on one hinge (``damping`` N·m·s/rad) at its
+    origin."""
     body = parent.add_body()
     body.name = name
     body.pos = pos
     body.gravcomp = 1.0
-    _hinge(body, joint, axis, limits)
+    _hinge(body, joint, axis, limits, damping)
     return body
 
 
@@ -166,7 +214,30 @@ def add_sih_hand(
     (``ACTUATORS``), the fingertip sites (``FINGERTIPS``), a ``palm`` site at the palm keypoint,
     and the published self-collision exclusions. Its collision geoms are tagged ``hand``: the
     scene applies the hand's contact material (``geomgrasp.materials.apply_materials``).
+    ``robot.hand_geometry`` picks capsules or hulls for the links, ``robot.hand_joint_damping``
+    the joints' damping.
     """
+    hulls = robot.hand_geometry == "hulls"
+    damping = robot.hand_joint_damping
+
+    def link(
+        parent: mujoco.MjsBody,
+        name: str,
+        pos: tuple[float, ...],
+        joint: str,
+        axis: tuple[float, float, float],
+        limits: tuple[float, float],
+        mass: float,
+        capsule: tuple[tuple[float, ...], tuple[float, ...], float],
+    ) -> mujoco.MjsBody:
+        """A link body with its collision geom: its hull, or the capsule (start, end, radius)."""
+        body = _link(parent, name, pos, joint, axis, limits, damping)
+        if hulls:
+            _hull(spec, body, mass)
+        else:
+            _capsule(spec, body, *capsule, mass)
+        return body
+
     palm = parent.add_body()
     palm.name = "palm"
     palm.pos = pos
@@ -180,18 +251,18 @@ def add_sih_hand(
     _hand_contact(spec, box)
     _site(palm, "palm", PALM_KEYPOINT)
 
-    th_base = _link(
-        palm, "th_proximal", THUMB_BASE_POS, "th_rot", (0.0, 0.0, 1.0), THUMB_ROT_RANGE,
+    th_base = link(
+        palm, "th_proximal", THUMB_BASE_POS, "th_rot", (0.0, 0.0, 1.0), THUMB_ROT_RANGE, 0.02,
+        ((0.0, 0.0, 0.0), THUMB_INTER_POS, THUMB_RADIUS),
     )
-    _capsule(spec, th_base, (0.0, 0.0, 0.0), THUMB_INTER_POS, THUMB_RADIUS, 0.02)
-    th_inter = _link(
-        th_base, "th_inter", THUMB_INTER_POS, "th_flex", (0.0, 1.0, 0.0), THUMB_FLEX_RANGE,
+    th_inter = link(
+        th_base, "th_inter", THUMB_INTER_POS, "th_flex", (0.0, 1.0, 0.0), THUMB_FLEX_RANGE, 0.02,
+        ((0.0, 0.0, 0.0), THUMB_DISTAL_POS, THUMB_RADIUS),
     )
-    _capsule(spec, th_inter, (0.0, 0.0, 0.0), THUMB_DISTAL_POS, THUMB_RADIUS, 0.02)
-    th_distal = _link(
+    th_distal = link(
         th_inter, "th_distal", THUMB_DISTAL_POS, "th_distal", (0.0, 1.0, 0.0), THUMB_FLEX_RANGE,
+        0.015, ((0.0, 0.0, 0.003), (-0.02, 0.0, 0.006), THUMB_RADIUS),
     )
-    _capsule(spec, th_distal, (0.0, 0.0, 0.003), (-0.02, 0.0, 0.006), THUMB_RADIUS, 0.015)
     _site(th_distal, "tip_th", THUMB_TIP_POS)
     # The published list, plus palm <-> th_inter: our palm box is coarser than the palm mesh
     # and touches the thumb's middle link when the thumb is abducted.
@@ -199,26 +270,14 @@ def add_sih_hand(
 
     for finger, (x, z_mcp, proximal_len, distal_len) in FINGERS.items():
         name = f"{finger}_proximal"
-        proximal = _link(palm, name, (x, 0.0, z_mcp), name, (1.0, 0.0, 0.0), FINGER_RANGE)
-        _capsule(
-            spec,
-            proximal,
-            (0.0, FINGER_AXIS_Y, 0.0),
-            (0.0, FINGER_AXIS_Y, proximal_len),
-            FINGER_RADIUS,
-            0.02,
+        proximal = link(
+            palm, name, (x, 0.0, z_mcp), name, (1.0, 0.0, 0.0), FINGER_RANGE, 0.02,
+            ((0.0, FINGER_AXIS_Y, 0.0), (0.0, FINGER_AXIS_Y, proximal_len), FINGER_RADIUS),
         )
         name = f"{finger}_distal"
-        distal = _link(
-            proximal, name, (0.0, 0.0, proximal_len), name, (1.0, 0.0, 0.0), FINGER_RANGE
-        )
-        _capsule(
-            spec,
-            distal,
-            (0.0, FINGER_AXIS_Y, 0.0),
-            (0.0, FINGER_AXIS_Y, distal_len - 0.008),
-            FINGER_RADIUS,
-            0.015,
+        distal = link(
+            proximal, name, (0.0, 0.0, proximal_len), name, (1.0, 0.0, 0.0), FINGER_RANGE, 0.015,
+            ((0.0, FINGER_AXIS_Y, 0.0), (0.0, FINGER_AXIS_Y, distal_len - 0.008), FINGER_RADIUS),
         )
         _site(distal, f"tip_{finger}", (0.0, PAD_Y, distal_len))
         excluded += [("palm", proximal.name), (proximal.name, distal.name)]

@@ -1,0 +1,220 @@
+"""Graspability: which objects can the hand and its physics lift at all, with the package's
+scripted grasp families (``trainer.grasps``), under one or more configurations, each compared
+with a baseline measured in the same run.
+
+For each configuration and each family (``top``, ``pinch``, or ``family:variant``; the ``base``
+variant by default), ``trainer.grasps.measure`` runs ``--trials`` randomized trials per object
+in one batch (the lift task, seed ``--seed``: every configuration and family sees the same
+initial states for the same objects) and classifies each: *lifted* (raised by 0.2 m and held,
+the task's success), *dropped*, *no_grip*, *pushed* (``trainer.grasps.outcomes``).
+
+Configurations: the baseline is today's defaults (``--config`` if given); ``--set KEY=VALUE``
+(``section.field``, a TOML value, repeatable) makes one configuration under test, ``--grid
+KEY=V1,V2,...`` (repeatable) one per combination (with the ``--set`` values on each). A grid's
+first combination that equals the baseline is measured once. Prints a table per configuration,
+then one summary line each: lifted of all trials and the ratio to the baseline's lifts.
+
+    python bench/graspability.py --objects 062_dice,032_knife --trials 10 --out dice.csv \\
+        [--family top,pinch:press6+noslip] [--backend cpu|warp --device DEV] \\
+        [--set robot.hand_geometry=hulls ...] [--grid robot.hand_forcerange=5.0,0.75 ...]
+
+The CSV has one row per configuration, family and object: ``object,family,trials,lifted,
+dropped,no_grip,pushed``, then ``variant``, ``config`` (the configuration's label: ``baseline``
+or its ``key=value`` overrides) and one column per ``--set`` / ``--grid`` key (that row's value).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import itertools
+import sys
+import time
+import tomllib
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from geomgrasp.errors import UserError
+from geomgrasp.files import atomic_path
+
+COLUMNS = ("object", "family", "trials", "lifted", "dropped", "no_grip", "pushed")
+"""The CSV's leading columns, as the graspability benchmark names them (issue 33)."""
+
+
+def parse_value(text: str) -> Any:
+    """A command-line value as TOML reads it (``0.75``, ``true``, ``[1, 2]``); a bare word that
+    is not TOML (``hulls``) is a string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def parse_assignment(text: str, option: str) -> tuple[str, str]:
+    """``KEY=VALUE`` -> (key, value text); anything else is a one-line error naming ``option``."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip() or not value.strip():
+        raise UserError(f"{option} {text!r}: write KEY=VALUE, e.g. robot.hand_geometry=hulls")
+    return key.strip(), value.strip()
+
+
+def overrides(values: dict[str, Any]) -> dict[str, Any]:
+    """Dotted keys -> ``load_env_config`` keyword overrides (``section.field`` becomes a dict of
+    the section's fields; a key without a dot is a top-level field)."""
+    out: dict[str, Any] = {}
+    for key, value in values.items():
+        section, dot, name = key.partition(".")
+        if dot:
+            out.setdefault(section, {})[name] = value
+        else:
+            out[key] = value
+    return out
+
+
+def configurations(sets: list[str], grids: list[str]) -> list[dict[str, Any]]:
+    """The configurations to measure, each a dict of dotted key -> value: the baseline (empty)
+    first, then one per combination of the ``grids`` values, each with the ``sets`` values (a
+    combination equal to the baseline is not repeated)."""
+    fixed = dict(parse_assignment(s, "--set") for s in sets)
+    fixed = {k: parse_value(v) for k, v in fixed.items()}
+    axes = []
+    for g in grids:
+        key, values = parse_assignment(g, "--grid")
+        axes.append((key, [parse_value(v) for v in values.split(",") if v.strip()]))
+    configs: list[dict[str, Any]] = [{}]
+    for combo in itertools.product(*(values for _, values in axes)):
+        config = {**fixed, **{key: v for (key, _), v in zip(axes, combo, strict=True)}}
+        if config not in configs:
+            configs.append(config)
+    return configs
+
+
+def is_baseline(config: dict[str, Any], default: dict[str, Any]) -> bool:
+    """Whether ``config`` sets every key to its value in ``default`` (the baseline's config as
+    nested dicts)."""
+    for key, value in config.items():
+        node: Any = default
+        for part in key.split("."):
+            node = node.get(part) if isinstance(node, dict) else None
+        if node != value and not (isinstance(node, tuple) and list(node) == value):
+            return False
+    return True
+
+
+def label(config: dict[str, Any]) -> str:
+    """A configuration's name in the table and the CSV."""
+    return " ".join(f"{k}={v}" for k, v in config.items()) or "baseline"
+
+
+def parse_families(spec: str) -> list[tuple[str, str]]:
+    """``top,pinch:press6+noslip`` -> [(family, variant)]; unknown names are one-line errors."""
+    from trainer.grasps import family, family_variants
+
+    chosen = []
+    for item in (s.strip() for s in spec.split(",") if s.strip()):
+        name, _, variant = item.partition(":")
+        family(name)  # an unknown family: one line listing them
+        family_variants(name, [variant or "base"])  # an unknown variant: one line listing them
+        chosen.append((name, variant or "base"))
+    if not chosen:
+        raise UserError("--family: name at least one grasp family (top, pinch)")
+    return chosen
+
+
+def write_csv(path: Path, rows: list[dict], keys: list[str]) -> None:
+    """The rows as a CSV (``COLUMNS``, ``variant``, ``config``, then ``keys``), atomically."""
+    fields = [*COLUMNS, "variant", "config", *keys]
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=fields, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--objects", default=None,
+                        help="object names or a set (builtin, ycb) [the Table I objects]")
+    parser.add_argument("--trials", type=int, default=10, help="trials per object [10]")
+    parser.add_argument("--out", type=Path, default=None, help="CSV of every row")
+    parser.add_argument("--family", default="top",
+                        help="families, comma-separated, each optionally FAMILY:VARIANT [top]")
+    parser.add_argument("--backend", choices=("cpu", "warp"), default=None, help="[cpu]")
+    parser.add_argument("--device", default=None, help="torch / Warp device [cpu]")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the initial states [0]")
+    parser.add_argument("--data-dir", type=Path, default=None, help="[./data]")
+    parser.add_argument("--config", type=Path, default=None, help="TOML config of every run")
+    parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                        help="an override of the configuration under test (repeatable)")
+    parser.add_argument("--grid", dest="grids", action="append", default=[],
+                        metavar="KEY=V1,V2", help="one configuration per value (repeatable)")
+    args = parser.parse_args(argv)
+    try:
+        run(args)
+    except UserError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(1)
+
+
+def run(args: argparse.Namespace) -> None:
+    """Measure every configuration x family and print the tables and the summary."""
+    from trainer.config import load_env_config
+    from trainer.grasps import TABLE1_OBJECTS, family_variants, measure
+    from trainer.objects import resolve_names
+
+    if args.trials < 1:
+        raise UserError(f"--trials {args.trials}: must be at least 1")
+    families = parse_families(args.family)
+    configs = configurations(args.sets, args.grids)
+    env: dict[str, Any] = {k: v for k, v in {
+        "data_dir": args.data_dir, "backend": args.backend, "device": args.device}.items()
+        if v is not None}
+    for config in configs:  # every configuration checked before the first trial runs
+        load_env_config(args.config, **{**env, **overrides(config)})
+    default = load_env_config(args.config, **env)
+    objects = resolve_names(args.objects or ",".join(TABLE1_OBJECTS), default.data_dir)
+    keys = list(dict.fromkeys(k for c in configs for k in c))
+    # A configuration under test that equals the baseline is measured once, as the baseline.
+    same = [c for c in configs[1:] if is_baseline(c, asdict(default))]
+    if same:
+        configs = [same[0], *(c for c in configs[1:] if c is not same[0])]
+
+    rows: list[dict] = []
+    totals: dict[str, tuple[int, int]] = {}
+    for config in configs:
+        name = label(config)
+        for fam, variant_name in families:
+            variant = family_variants(fam, [variant_name])[variant_name]
+            start = time.perf_counter()
+            batch = measure(fam, variant_name, variant, objects, args.trials, args.seed,
+                            args.config, **{**env, **overrides(config)})
+            seconds = time.perf_counter() - start
+            for row in batch:
+                row.update(config=name, **{k: config.get(k, "") for k in keys})
+            rows += batch
+            lifted, trials = (sum(r[k] for r in batch) for k in ("lifted", "trials"))
+            done = totals.get(name, (0, 0))
+            totals[name] = (done[0] + lifted, done[1] + trials)
+            print(f"\n### {name}: {fam} {variant_name} ({lifted}/{trials} lifted, "
+                  f"{seconds:.0f} s)\n")
+            print("| object | lifted | dropped | no grip | pushed |")
+            print("|---|---:|---:|---:|---:|")
+            for r in batch:
+                print(f"| {r['object']} | {r['lifted']} | {r['dropped']} | {r['no_grip']} | "
+                      f"{r['pushed']} |")
+            sys.stdout.flush()
+            if args.out is not None:
+                write_csv(args.out, rows, keys)
+
+    base = totals[label(configs[0])][0]
+    print("\n## summary (lifted of all trials; ratio to the baseline, measured in this run)\n")
+    print(f"baseline: {label(configs[0]) if configs[0] else 'the default configuration'}")
+    for name, (lifted, trials) in totals.items():
+        ratio = f"{lifted / base:.2f}x" if base else "n/a (baseline lifted 0)"
+        print(f"{name}: {lifted}/{trials} lifted, {ratio} the baseline")
+    if args.out is not None:
+        print(f"\nrows: {args.out}")
+
+
+if __name__ == "__main__":
+    main()

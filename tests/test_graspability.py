@@ -1,0 +1,61 @@
+"""bench/graspability.py: its configurations (the baseline first, measured once), its value
+parsing and its one-line errors (no trial runs in these tests)."""
+
+from __future__ import annotations
+
+import importlib.util
+from dataclasses import asdict
+from pathlib import Path
+
+import pytest
+
+from geomgrasp.errors import UserError
+from trainer.config import load_env_config
+
+_PATH = Path(__file__).resolve().parents[1] / "bench" / "graspability.py"
+_SPEC = importlib.util.spec_from_file_location("graspability", _PATH)
+graspability = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(graspability)
+
+
+def test_configurations_put_the_baseline_first_and_span_the_grid() -> None:
+    configs = graspability.configurations(
+        ["robot.hand_kp=30"], ["robot.hand_geometry=capsules,hulls", "robot.hand_forcerange=5,0.75"]
+    )
+    assert configs[0] == {}
+    assert len(configs) == 5
+    assert configs[1] == {"robot.hand_kp": 30, "robot.hand_geometry": "capsules",
+                          "robot.hand_forcerange": 5}
+    assert graspability.overrides(configs[4]) == {
+        "robot": {"hand_kp": 30, "hand_geometry": "hulls", "hand_forcerange": 0.75}}
+    default = asdict(load_env_config())
+    assert graspability.is_baseline({"robot.hand_geometry": "capsules"}, default)
+    assert not graspability.is_baseline(configs[1], default)  # hand_kp 30 is not today's
+
+
+def test_values_parse_as_toml_and_bare_words_as_strings() -> None:
+    assert graspability.parse_value("0.75") == 0.75
+    assert graspability.parse_value("hulls") == "hulls"
+    assert graspability.parse_value("[1.0, 0.5]") == [1.0, 0.5]
+    with pytest.raises(UserError, match="KEY=VALUE"):
+        graspability.configurations(["robot.hand_geometry"], [])
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--family", "grab"], "error: unknown grasp family 'grab': choose one of top, pinch"),
+        (["--family", "pinch:squeeze"], "error: unknown variant 'squeeze' of grasp family"),
+        (["--objects", "999_nothing"], "error: "),
+        (["--set", "robot.hand_geometry=spheres"],
+         'error: [robot] hand_geometry = "spheres": must be one of "capsules", "hulls"'),
+    ],
+)
+def test_unknown_names_are_one_line_errors(
+    args: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exc:
+        graspability.main(["--data-dir", str(tmp_path), *args])
+    assert exc.value.code == 1
+    err = capsys.readouterr().err
+    assert err.startswith(message) and err.count("\n") == 1, err
