@@ -4,6 +4,7 @@ classification on synthetic recorded trajectories, and the one runner for every 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -153,6 +154,14 @@ def test_recording_does_not_change_the_run(builtin_data: Config) -> None:
     assert all(OUTCOMES[c] == "lifted" for c in codes[plain])
     assert not trajectory.success_distance[plain].isnan().any()
     assert torch.isnan(trajectory.success_distance[~plain]).all()
+    # The scripts command absolute hand targets: a relative-action hand is refused in one line.
+    relative = dataclasses.replace(
+        cfg, robot=dataclasses.replace(cfg.robot, hand_action="relative")
+    )
+    env = make_env(relative, seed=11)
+    with pytest.raises(TrainerError, match='hand_action = "absolute"'):
+        run_scripted_grasp(env, TopGrasp())
+    env.close()
 
 
 def test_pinch_family_runs_and_writes_rows(builtin_data: Config, tmp_path: Path,

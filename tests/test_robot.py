@@ -192,6 +192,41 @@ def test_robot_commands_and_hold_action(kind: str) -> None:
         assert not torch.equal(ctrl[:, robot.arm_actuators], home.ctrl[robot.arm_actuators])
 
 
+def test_relative_hand_actions_move_the_targets_by_steps_within_the_range() -> None:
+    """``hand_action = "relative"``: an action moves each target by ``hand_relative_step`` per
+    unit from where it was, never past open or closed; 0 holds the targets (``hold_action``)."""
+    cfg = load_env_config(robot={"kind": "floating", "hand_action": "relative"})
+    robot = make_robot(cfg.robot)
+    model = _model("floating")
+    robot.index(model, torch.device("cpu"))
+    home = robot.home(model)
+    hand = robot.hand
+    action = torch.zeros(2, robot.action_dim)
+    action[0, 6:] = torch.tensor([0.0, 1.0, 1.0, -1.0, 0.5])
+    palm = home.keypoint.expand(2, 3)
+    ctrl = home.ctrl.expand(2, -1)
+    step = cfg.robot.hand_relative_step
+    for _ in range(3):
+        _, _, ctrl = robot.commands(
+            action, palm, palm, home.rot.expand(2, 3, 3), ctrl, home.qpos.expand(2, -1)
+        )
+    targets = ctrl[:, hand.actuators]
+    start = home.ctrl[hand.actuators]
+    toward_closed = torch.sign(hand.closed - hand.open)  # +1 closes, as in absolute mode
+    expected = (start + 3 * step * action[0, 6:] * toward_closed).clamp(hand.low, hand.high)
+    torch.testing.assert_close(targets[0], expected)
+    # The thumb rotation starts opposed (closed): +1 cannot move it further; the index closes.
+    assert targets[0, 0] == start[0] and targets[0, 2] == start[2] - 3 * step
+    torch.testing.assert_close(targets[1], start)  # action 0: the targets stay
+    assert (targets >= hand.low).all() and (targets <= hand.high).all()
+    assert not robot.hold_action(ctrl).any()
+    many = robot.commands(
+        torch.ones(1, robot.action_dim), palm[:1], palm[:1], home.rot[None], ctrl[:1],
+        home.qpos[None],
+    )[2][:, hand.actuators]
+    assert (many >= hand.low).all() and (many <= hand.high).all()
+
+
 # --- The link hulls (robot.hand_geometry = "hulls") ------------------------------------------
 
 

@@ -44,6 +44,7 @@ CONTEXTS = ("none", "bbox")
 REWARDS = ("sdf", "com", "none")
 ROBOTS = ("ur5e", "floating")
 HAND_GEOMETRIES = ("capsules", "hulls")
+HAND_ACTIONS = ("absolute", "relative")
 
 
 class _Checked(Checked):
@@ -129,6 +130,16 @@ class RobotConfig(_Checked):
     """Damping of the 11 hand joints (N·m·s/rad). 1.0 is the dexterity MJCF's class default; the
     authors' URDF has 0.1. At a 0.75 N·m servo limit, 1.0 caps a finger's closing speed at
     0.75 rad/s (issue 33)."""
+    hand_action: str = bounded("absolute", choices=HAND_ACTIONS)
+    """How the hand's 5 action values command its servos: ``absolute`` (a target between open,
+    -1, and closed, +1, every action; at the initial action std of 0.6 a finger's target jumps
+    by up to ~0.47 rad per action) or ``relative`` (each action moves the targets by
+    ``hand_relative_step`` times its value, clamped to the range, as the authors' Isaac Gym task
+    does; 0 holds them). The scripted grasps command absolute targets."""
+    hand_relative_step: float = bounded(0.167, gt=0)
+    """``relative``: target change per action at |a| = 1 (rad; +1 toward closed): 5 rad/s at
+    the 30 Hz control rate, the authors' a * dt * 5; a finger's 1.571 rad range in ~10
+    actions."""
     home_hand_height: float = bounded(0.28, gt=0)
     """Palm keypoint height above the table at reset (m)."""
     pos_step: float = bounded(0.02, ge=0)

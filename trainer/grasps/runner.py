@@ -10,6 +10,7 @@ from typing import Protocol
 import torch
 from tensordict import TensorDict
 
+from trainer.errors import TrainerError
 from trainer.grasps.top import TopGrasp
 from trainer.tasks import GraspTask
 
@@ -105,6 +106,11 @@ def run_scripted_grasp(
     """Reset every env and run ``script`` (default: the top grasp); return (E,) bool: the
     env's success at some step. ``on_step(step)`` is called after every action (e.g. to render
     a frame); ``recorder`` captures the trajectory."""
+    if env.cfg.robot.hand_action != "absolute":
+        raise TrainerError(
+            f"the scripted grasps command absolute hand targets, not [robot] hand_action = "
+            f"{env.cfg.robot.hand_action!r}: run them with hand_action = \"absolute\""
+        )
     script = script or TopGrasp()
     env.reset()
     plan: dict = {}

@@ -348,15 +348,36 @@ class SIHHand:
         ctrl[self.actuators] = hand
         qpos[self.qpos[0]] = hand[0]
 
+    @property
+    def low(self) -> torch.Tensor:
+        """(5,) the lower end of each actuator's target range (rad)."""
+        return torch.minimum(self.open, self.closed)
+
+    @property
+    def high(self) -> torch.Tensor:
+        """(5,) the upper end of each actuator's target range (rad)."""
+        return torch.maximum(self.open, self.closed)
+
     def command(self, action: torch.Tensor, ctrl: torch.Tensor) -> torch.Tensor:
-        """A copy of ``ctrl`` (E, nu) with the hand's targets set from its actions (E, 5)."""
-        hand = self.open + 0.5 * (action + 1.0) * (self.closed - self.open)
+        """A copy of ``ctrl`` (E, nu) with the hand's targets set from its actions (E, 5) in
+        [-1, 1]: ``absolute``, the target between open (-1) and closed (+1); ``relative``, the
+        last target moved toward closed by ``hand_relative_step`` * action (toward open for a
+        negative action), kept within the range."""
+        if self.cfg.hand_action == "relative":
+            # +1 moves toward closed, -1 toward open, as in the absolute mode.
+            step = self.cfg.hand_relative_step * action * torch.sign(self.closed - self.open)
+            hand = (ctrl[:, self.actuators] + step).clamp(self.low, self.high)
+        else:
+            hand = self.open + 0.5 * (action + 1.0) * (self.closed - self.open)
         ctrl = ctrl.clone()
         ctrl[:, self.actuators] = hand
         return ctrl
 
     def action(self, ctrl: torch.Tensor) -> torch.Tensor:
-        """(E, 5) the hand actions whose targets are those in ``ctrl`` (E, nu)."""
+        """(E, 5) the hand actions that keep the targets in ``ctrl`` (E, nu): those targets'
+        values (``absolute``), or no change (``relative``)."""
         hand = ctrl[:, self.actuators]
+        if self.cfg.hand_action == "relative":
+            return torch.zeros_like(hand)
         span = self.closed - self.open
         return 2.0 * (hand - self.open) / span - 1.0
