@@ -173,25 +173,6 @@ def _hinge(
     joint.armature = JOINT_ARMATURE
 
 
-def _link(
-    parent: mujoco.MjsBody,
-    name: str,
-    pos: tuple[float, ...],
-    joint: str,
-    axis: tuple[float, float, float],
-    limits: tuple[float, float],
-    damping: float,
-) -> mujoco.MjsBody:
-    """A gravity-compensated child body turning on one hinge (``damping`` N·m·s/rad) at its
-    origin."""
-    body = parent.add_body()
-    body.name = name
-    body.pos = pos
-    body.gravcomp = 1.0
-    _hinge(body, joint, axis, limits, damping)
-    return body
-
-
 def _site(body: mujoco.MjsBody, name: str, pos: tuple[float, ...]) -> None:
     site = body.add_site()
     site.name = name
@@ -230,8 +211,13 @@ def add_sih_hand(
         mass: float,
         capsule: tuple[tuple[float, ...], tuple[float, ...], float],
     ) -> mujoco.MjsBody:
-        """A link body with its collision geom: its hull, or the capsule (start, end, radius)."""
-        body = _link(parent, name, pos, joint, axis, limits, damping)
+        """A gravity-compensated child body turning on one hinge at its origin, with its
+        collision geom: its hull, or the capsule (start, end, radius)."""
+        body = parent.add_body()
+        body.name = name
+        body.pos = pos
+        body.gravcomp = 1.0
+        _hinge(body, joint, axis, limits, damping)
         if hulls:
             _hull(spec, body, mass)
         else:
