@@ -18,12 +18,14 @@ hold in memory.
     python bench/env_throughput.py [--tasks lift,bin] [--envs 256] [--reprs default|com,sdf,...]
                                    [--objects builtin] [--bin-objects 5] [--no-compile]
                                    [--memory-objects ycb] [--memory-bin-objects 10] [--no-memory]
-                                   [--sleep] [--noslip 0,5]
+                                   [--sleep] [--noslip 0,5] [--set KEY=VALUE ...]
 
 ``--sleep`` sets ``[physics] sleep`` (resting objects sleep; the CPU backend then steps through
 persistent ``mujoco.batch.Batch``es): compare a run with it to one without. ``--noslip`` sets
 ``[physics] noslip_iterations``; a comma list builds every task at each value and times them all
 in the same alternating rounds, so the cost of the no-slip solver is a ratio within one run.
+``--set KEY=VALUE`` (``section.field``, repeatable; e.g. ``robot.hand_drive=all-joints``) adds
+one more configuration, timed in the same rounds, with its ratio to the first.
 
 ``--reprs default`` (the default) uses each task's own representation (``trainer.config.TASKS``:
 sq for lift, bbox for bin).
@@ -54,7 +56,15 @@ from pathlib import Path
 
 import torch
 
-from trainer.config import EnvConfig, check_backend, check_device, load_env_config
+from trainer.config import (
+    EnvConfig,
+    check_backend,
+    check_device,
+    dotted_overrides,
+    load_env_config,
+    parse_assignment,
+    parse_value,
+)
 from trainer.errors import TrainerError
 from trainer.objects import resolve_names
 from trainer.sim import make_backend
@@ -131,13 +141,15 @@ class Stepper:
 
 
 def task_config(args: argparse.Namespace, task: str, envs: int, rep: str, objects: str,
-                bin_objects: int, noslip: int | None = None) -> EnvConfig:
-    physics: dict = {"sleep": args.sleep}
-    if noslip is not None:
-        physics["noslip_iterations"] = noslip
+                bin_objects: int, extra: dict | None = None) -> EnvConfig:
+    """The config of one timed env; ``extra``: a variant's overrides (``variants``), merged
+    section by section over this benchmark's own."""
+    extra = extra or {}
     overrides: dict = {"task": task, "num_envs": envs, "objects": objects,
-                       "compile": args.compile, "robot": {"kind": args.robot},
-                       "physics": physics}
+                       "compile": args.compile,
+                       "robot": {"kind": args.robot, **extra.get("robot", {})},
+                       "physics": {"sleep": args.sleep, **extra.get("physics", {})}}
+    overrides.update({k: v for k, v in extra.items() if k not in ("robot", "physics")})
     if rep != "default":
         overrides["representation"] = rep
     if task == "bin":
@@ -156,47 +168,65 @@ def paired(steppers: dict, a: tuple, b: tuple) -> float:
     )
 
 
+def variants(args: argparse.Namespace) -> list[tuple[str, dict]]:
+    """(label, overrides) of each configuration timed: the default or each ``--noslip`` value,
+    then ``--set``'s configuration if given."""
+    if args.noslip is None:
+        out = [("default", {})]
+    else:
+        out = [(f"noslip {v}", {"physics": {"noslip_iterations": int(v)}})
+               for v in args.noslip.split(",")]
+    if args.sets:
+        values = dict(parse_assignment(text, "--set") for text in args.sets)
+        out.append((" ".join(args.sets),
+                    dotted_overrides({k: parse_value(v) for k, v in values.items()})))
+    return out
+
+
 def throughput(args: argparse.Namespace) -> None:
     """All tasks' envs of one env count and representation are built together and timed in
     alternating blocks (``--rounds`` of each), each rate the median over its blocks, so that a
     slow moment of the machine hits every task and the physics-only baseline alike."""
-    noslips = [None] if args.noslip is None else [int(v) for v in args.noslip.split(",")]
+    configs = variants(args)
+    labels = [label for label, _ in configs]
+    extras = dict(configs)
     print(f"{'task':>5} {'envs':>6} {'repr':>6} {'noslip':>6} {'env steps/s':>12} "
-          f"{'phys steps/s':>13} {'ratio':>6}")
+          f"{'phys steps/s':>13} {'ratio':>6}  config")
     for n in (int(v) for v in args.envs.split(",")):
         for rep in args.reprs.split(","):
             steppers = {}
-            for noslip in noslips:
+            for label in labels:
                 for task in args.tasks.split(","):
-                    cfg = task_config(args, task, n, rep, args.objects, args.bin_objects, noslip)
-                    steppers[task, noslip] = Stepper(make_env(cfg), args.steps)
+                    cfg = task_config(args, task, n, rep, args.objects, args.bin_objects,
+                                      extras[label])
+                    steppers[task, label] = Stepper(make_env(cfg), args.steps)
             for _ in range(args.rounds):
                 for stepper in steppers.values():
                     stepper.block()
             rates = {}
-            for (task, noslip), stepper in steppers.items():
+            for (task, label), stepper in steppers.items():
                 env_rate = statistics.median(stepper.env_rates)
                 raw_rate = statistics.median(stepper.raw_rates)
-                rates[task, noslip] = env_rate
+                rates[task, label] = env_rate
                 iterations = stepper.env.cfg.physics.noslip_iterations
                 print(f"{task:>5} {n:>6} {stepper.env.cfg.representation:>6} {iterations:>6} "
-                      f"{env_rate:>12.0f} {raw_rate:>13.0f} {env_rate / raw_rate:>6.2f}")
+                      f"{env_rate:>12.0f} {raw_rate:>13.0f} {env_rate / raw_rate:>6.2f}  {label}")
                 stepper.env.close()
 
-            for noslip in noslips:
-                if ("bin", noslip) in steppers and ("lift", noslip) in steppers:
-                    at = "" if noslip is None else f", noslip {noslip}"
-                    ratio = rates["bin", noslip] / rates["lift", noslip]
-                    per_round = paired(steppers, ("lift", noslip), ("bin", noslip))
+            for label in labels:
+                if ("bin", label) in steppers and ("lift", label) in steppers:
+                    at = "" if len(labels) == 1 else f", {label}"
+                    ratio = rates["bin", label] / rates["lift", label]
+                    per_round = paired(steppers, ("lift", label), ("bin", label))
                     print(f"bin ({args.bin_objects} objects) / lift env steps/s, {n} envs, repr "
                           f"{rep}{at}: {ratio:.2f} (per-round median {per_round:.2f}; "
                           "target >= 0.50)")
             for task in args.tasks.split(","):
-                for noslip in noslips[1:]:
-                    print(f"{task}, {n} envs, repr {rep}: noslip {noslip} / noslip {noslips[0]} "
-                          f"env steps/s: {rates[task, noslip] / rates[task, noslips[0]]:.2f} "
+                for label in labels[1:]:
+                    print(f"{task}, {n} envs, repr {rep}: {label} / {labels[0]} "
+                          f"env steps/s: {rates[task, label] / rates[task, labels[0]]:.2f} "
                           f"(per-round median "
-                          f"{paired(steppers, (task, noslips[0]), (task, noslip)):.2f})")
+                          f"{paired(steppers, (task, labels[0]), (task, label)):.2f})")
 
 
 def warp_throughput(args: argparse.Namespace) -> None:
@@ -321,6 +351,8 @@ def main() -> None:
                         help="[physics] sleep: resting objects sleep (cpu backend)")
     parser.add_argument("--noslip", default=None,
                         help="[physics] noslip_iterations, or a comma list to compare (cpu)")
+    parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                        help="one more configuration to time beside the others (cpu; repeatable)")
     parser.add_argument("--steps", type=int, default=20, help="env steps per timed block")
     parser.add_argument("--rounds", type=int, default=5, help="alternating env/physics blocks")
     parser.add_argument(

@@ -21,6 +21,10 @@ then one summary line each: lifted of all trials and the ratio to the baseline's
 The CSV has one row per configuration, family and object: ``object,family,trials,lifted,
 dropped,no_grip,pushed``, then ``variant``, ``config`` (the configuration's label: ``baseline``
 or its ``key=value`` overrides) and one column per ``--set`` / ``--grid`` key (that row's value).
+``--hold`` (CPU backend) probes every trial still lifted at the script's end
+(``trainer.grasps.hold``: slip speed relative to the palm, grip force, the pull resisted over
+what friction times the grip allows) and adds ``held_end,slip_mm_s,grip_n,pull_ratio``
+(medians) to the table and the CSV.
 """
 
 from __future__ import annotations
@@ -30,46 +34,17 @@ import csv
 import itertools
 import sys
 import time
-import tomllib
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 from geomgrasp.errors import UserError
 from geomgrasp.files import atomic_path
+from trainer.config import dotted_overrides as overrides
+from trainer.config import parse_assignment, parse_value
 
 COLUMNS = ("object", "family", "trials", "lifted", "dropped", "no_grip", "pushed")
 """The CSV's leading columns, as the graspability benchmark names them (issue 33)."""
-
-
-def parse_value(text: str) -> Any:
-    """A command-line value as TOML reads it (``0.75``, ``true``, ``[1, 2]``); a bare word that
-    is not TOML (``hulls``) is a string."""
-    try:
-        return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        return text
-
-
-def parse_assignment(text: str, option: str) -> tuple[str, str]:
-    """``KEY=VALUE`` -> (key, value text); anything else is a one-line error naming ``option``."""
-    key, sep, value = text.partition("=")
-    if not sep or not key.strip() or not value.strip():
-        raise UserError(f"{option} {text!r}: write KEY=VALUE, e.g. robot.hand_geometry=hulls")
-    return key.strip(), value.strip()
-
-
-def overrides(values: dict[str, Any]) -> dict[str, Any]:
-    """Dotted keys -> ``load_env_config`` keyword overrides (``section.field`` becomes a dict of
-    the section's fields; a key without a dot is a top-level field)."""
-    out: dict[str, Any] = {}
-    for key, value in values.items():
-        section, dot, name = key.partition(".")
-        if dot:
-            out.setdefault(section, {})[name] = value
-        else:
-            out[key] = value
-    return out
 
 
 def configurations(sets: list[str], grids: list[str]) -> list[dict[str, Any]]:
@@ -122,9 +97,14 @@ def parse_families(spec: str) -> list[tuple[str, str]]:
     return chosen
 
 
-def write_csv(path: Path, rows: list[dict], keys: list[str]) -> None:
-    """The rows as a CSV (``COLUMNS``, ``variant``, ``config``, then ``keys``), atomically."""
-    fields = [*COLUMNS, "variant", "config", *keys]
+HOLD_COLUMNS = ("held_end", "slip_mm_s", "grip_n", "pull_ratio")
+"""``--hold``'s columns (``trainer.grasps.measure``)."""
+
+
+def write_csv(path: Path, rows: list[dict], keys: list[str], hold: bool = False) -> None:
+    """The rows as a CSV (``COLUMNS``, ``variant``, ``config``, ``keys``, then with ``hold``
+    ``HOLD_COLUMNS``), atomically."""
+    fields = [*COLUMNS, "variant", "config", *keys, *(HOLD_COLUMNS if hold else ())]
     with atomic_path(path) as tmp, open(tmp, "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=fields, extrasaction="ignore")
         writer.writeheader()
@@ -148,6 +128,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="an override of the configuration under test (repeatable)")
     parser.add_argument("--grid", dest="grids", action="append", default=[],
                         metavar="KEY=V1,V2", help="one configuration per value (repeatable)")
+    parser.add_argument("--hold", action="store_true",
+                        help="probe the held trials' slip and pull (cpu backend)")
     args = parser.parse_args(argv)
     try:
         run(args)
@@ -187,7 +169,7 @@ def run(args: argparse.Namespace) -> None:
             variant = family_variants(fam, [variant_name])[variant_name]
             start = time.perf_counter()
             batch = measure(fam, variant_name, variant, objects, args.trials, args.seed,
-                            args.config, **{**env, **overrides(config)})
+                            args.config, hold=args.hold, **{**env, **overrides(config)})
             seconds = time.perf_counter() - start
             for row in batch:
                 row.update(config=name, **{k: config.get(k, "") for k in keys})
@@ -197,14 +179,16 @@ def run(args: argparse.Namespace) -> None:
             totals[name] = (done[0] + lifted, done[1] + trials)
             print(f"\n### {name}: {fam} {variant_name} ({lifted}/{trials} lifted, "
                   f"{seconds:.0f} s)\n")
-            print("| object | lifted | dropped | no grip | pushed |")
-            print("|---|---:|---:|---:|---:|")
+            extra = HOLD_COLUMNS if args.hold else ()
+            print("| object | lifted | dropped | no grip | pushed |"
+                  + "".join(f" {c} |" for c in extra))
+            print("|---|---:|---:|---:|---:|" + "---:|" * len(extra))
             for r in batch:
                 print(f"| {r['object']} | {r['lifted']} | {r['dropped']} | {r['no_grip']} | "
-                      f"{r['pushed']} |")
+                      f"{r['pushed']} |" + "".join(f" {r[c]} |" for c in extra))
             sys.stdout.flush()
             if args.out is not None:
-                write_csv(args.out, rows, keys)
+                write_csv(args.out, rows, keys, args.hold)
 
     base = totals[label(configs[0])][0]
     print("\n## summary (lifted of all trials; ratio to the baseline, measured in this run)\n")

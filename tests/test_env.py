@@ -292,3 +292,28 @@ def test_hold_from_relaxes_only_the_low_training_targets() -> None:
     assert success.tolist() == [True, True, False, True]
     with pytest.raises(TrainerError, match=r"hold_from.*at most h_bar"):
         load_env_config(reward={"hold_from": 0.3})
+
+
+def test_observed_fingertips_extend_proprio_with_the_pad_positions(builtin_data: Config) -> None:
+    """``observe_fingertips``: ``proprio`` gains the 5 fingertip pads' world positions after its
+    20 values (the spec says 35); the 20 are what they were without it."""
+    from trainer.kinematics import SiteKinematics
+
+    cfg = load_env_config(num_envs=3, objects="builtin", representation="com",
+                          data_dir=builtin_data.data_dir, observe_fingertips=True)
+    env = make_env(cfg, seed=0)
+    plain = make_env(dataclasses.replace(cfg, observe_fingertips=False), seed=0)
+    try:
+        check_env_specs(env)
+        assert env.observation_spec["proprio"].shape == (3, 35)
+        proprio = env.reset()["proprio"]
+        torch.testing.assert_close(proprio[:, :20], plain.reset()["proprio"])
+        kinematics = SiteKinematics(env.backend.model, env.robot.sites)
+        tips = kinematics.forward(env.backend.qpos).site_pos[:, 1:]
+        torch.testing.assert_close(proprio[:, 20:], tips.reshape(3, 15))
+        td = env.rollout(3, break_when_any_done=False)
+        tips = kinematics.forward(env.backend.qpos).site_pos[:, 1:]
+        torch.testing.assert_close(td["next", "proprio"][:, -1, 20:], tips.reshape(3, 15))
+    finally:
+        env.close()
+        plain.close()

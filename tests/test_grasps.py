@@ -187,3 +187,44 @@ def test_pinch_family_runs_and_writes_rows(builtin_data: Config, tmp_path: Path,
     assert [[r[o] for o in OUTCOMES] for r in again] == [
         [int(r[o]) for o in OUTCOMES] for r in rows
     ]
+
+
+def test_hold_probe_measures_a_held_grasp_and_a_free_fall(builtin_data: Config) -> None:
+    """``measure(..., hold=True)``: a top grasp still lifted at its end is probed: it slips
+    slowly, the hand presses on it, and a growing downward pull makes it slip before the pull's
+    cap, at a load of the order of what friction times the grip allows. A target in free fall
+    (no contact) has no grip and no capacity, so its pull ratio is NaN."""
+    import math
+
+    import mujoco
+
+    from trainer.grasps.hold import MAX_PULL, measure_hold
+
+    rows = measure("top", "base", family("top").variants["base"], ["builtin_cylinder"], 2,
+                   data_dir=builtin_data.data_dir, hold=True, robot={"hand_forcerange": 0.75,
+                                                                    "hand_joint_damping": 0.1})
+    (row,) = rows
+    assert row["held_end"] >= 1
+    assert 0 <= row["slip_mm_s"] < 20 and row["grip_n"] > 1
+    assert 0.05 < row["pull_ratio"] < 3
+    model = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><body name="palm"/><body name="ball" pos="0 0 1"><freejoint/>'
+        '<geom size="0.02" mass="0.1"/></body></worldbody></mujoco>')
+    data = mujoco.MjData(model)
+    free = measure_hold(model, data, model.body("ball").id)
+    assert not free.held and free.grip_n == 0 and free.capacity_n == 0
+    assert math.isnan(free.pull_ratio)
+    assert free.slip_mm_s > 1000 and free.pull_n < MAX_PULL
+    assert free.weight_n == pytest.approx(0.1 * 9.81)
+    # A ball resting on a hand geom: its support is the contact's normal force, its weight,
+    # whichever geom MuJoCo lists first; pressed into the geom it moves only by penetration.
+    palm = ('<body name="palm"><geom type="box" size="0.1 0.1 0.01" contype="8" '
+            'conaffinity="2"/></body>')
+    ball = ('<body name="ball" pos="0 0 0.03"><freejoint/><geom size="0.02" mass="0.1" '
+            'contype="2" conaffinity="8"/></body>')
+    for bodies in (palm + ball, ball + palm):
+        model = mujoco.MjModel.from_xml_string(f"<mujoco><worldbody>{bodies}</worldbody></mujoco>")
+        rest = measure_hold(model, mujoco.MjData(model), model.body("ball").id)
+        assert rest.held and rest.slip_mm_s < 0.01
+        assert rest.capacity_n == pytest.approx(0.1 * 9.81, rel=0.01)
+        assert rest.pull_ratio > 5

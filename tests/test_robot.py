@@ -346,3 +346,64 @@ def test_hand_joint_damping_is_a_knob_with_todays_default(floating: mujoco.MjMod
     np.testing.assert_array_equal(floating.dof_damping[dofs], sih.JOINT_DAMPING)
     model = _hull_model("floating", hand_joint_damping=0.1)
     np.testing.assert_allclose(model.dof_damping[dofs], 0.1)
+
+
+def _drive_model(drive: str, **robot: object) -> tuple[mujoco.MjModel, object]:
+    cfg = load_env_config(robot={"kind": "floating", "hand_drive": drive, **robot})
+    return build_scene(cfg, Scene(num_slots=0), []).compile(), make_robot(cfg.robot)
+
+
+def test_all_joints_drive_has_11_actuators_no_equalities_and_coupled_targets() -> None:
+    """``hand_drive = "all-joints"``: the 5 servo actuators come first, then one per follower
+    joint with its leader's range, force limit and gain; no equality couples the joints; every
+    command (absolute or relative, and the home state) gives each follower its leader's target."""
+    model, robot = _drive_model("all-joints", hand_forcerange=0.75)
+    joint_eq = int(mujoco.mjtEq.mjEQ_JOINT)
+    assert model.nu == 11 and not (model.eq_type == joint_eq).any()  # the mocap weld stays
+    assert [model.actuator(i).name for i in range(5)] == [a[0] for a in sih.ACTUATORS]
+    for name, joint, leader in sih.FOLLOWER_ACTUATORS:
+        act, lead = model.actuator(name), model.actuator(sih.ACTUATORS[leader][0])
+        assert model.joint(int(act.trnid[0])).name == joint
+        np.testing.assert_array_equal(act.ctrlrange, lead.ctrlrange)
+        np.testing.assert_array_equal(act.forcerange, [-0.75, 0.75])
+        np.testing.assert_array_equal(act.gainprm[:1], lead.gainprm[:1])
+    robot.index(model, torch.device("cpu"))
+    home = robot.home(model)
+    leaders = robot.hand.actuators[robot.hand.follower_leader]
+    torch.testing.assert_close(home.ctrl[robot.hand.followers], home.ctrl[leaders])
+    E = 4
+    action = torch.zeros(E, robot.action_dim)
+    action[:, 6:] = torch.rand(E, 5) * 2 - 1
+    palm = home.keypoint.expand(E, 3)
+    ctrl = robot.commands(action, palm, palm, home.rot.expand(E, 3, 3),
+                          home.ctrl.expand(E, -1), home.qpos.expand(E, -1))[2]
+    torch.testing.assert_close(ctrl[:, robot.hand.followers], ctrl[:, leaders])
+    assert not torch.equal(ctrl[:, leaders], home.ctrl[leaders].expand(E, -1))
+    _, relative = _drive_model("all-joints", hand_action="relative")
+    relative.index(model, torch.device("cpu"))
+    ctrl = relative.commands(action, palm, palm, home.rot.expand(E, 3, 3),
+                             home.ctrl.expand(E, -1), home.qpos.expand(E, -1))[2]
+    torch.testing.assert_close(ctrl[:, robot.hand.followers], ctrl[:, leaders])
+    # The default keeps 5 actuators and the 6 equalities.
+    model, robot = _drive_model("equalities")
+    assert model.nu == 5 and (model.eq_type == joint_eq).sum() == 6
+    robot.index(model, torch.device("cpu"))
+    assert robot.hand.followers.numel() == 0
+
+
+def test_all_joints_drive_closes_each_follower_with_its_leader() -> None:
+    """Driving the 11 joints to coupled targets closes the hand as the couplings do: after
+    2 s toward 60 % closed at the real servo limit, each follower is within 0.05 rad of its
+    leader and the fingers have closed."""
+    model, _ = _drive_model("all-joints", hand_forcerange=0.75, hand_joint_damping=0.1)
+    data = mujoco.MjData(model)
+    for name, _, _, closed in sih.ACTUATORS:
+        data.ctrl[model.actuator(name).id] = 0.6 * closed
+    for name, _, leader in sih.FOLLOWER_ACTUATORS:
+        data.ctrl[model.actuator(name).id] = 0.6 * sih.ACTUATORS[leader][3]
+    for _ in range(600):
+        mujoco.mj_step(model, data)
+    q = {n: data.qpos[model.joint(n).qposadr[0]] for n in sih.JOINTS}
+    assert q["if_proximal"] < -0.8
+    for follower, leader in sih.COUPLINGS:
+        assert abs(q[follower] - q[leader]) < 0.05, (follower, leader, q)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,6 +46,7 @@ REWARDS = ("sdf", "com", "none")
 ROBOTS = ("ur5e", "floating")
 HAND_GEOMETRIES = ("capsules", "hulls")
 HAND_ACTIONS = ("absolute", "relative")
+HAND_DRIVES = ("equalities", "all-joints")
 
 
 class _Checked(Checked):
@@ -126,6 +128,12 @@ class RobotConfig(_Checked):
     """Collision shapes of the 11 finger and thumb links: ``capsules`` (our estimate of the link
     sizes) or ``hulls`` (the convex hulls of the published link meshes,
     ``trainer/robots/sih_hulls.json``). The palm is a box either way."""
+    hand_drive: str = bounded("equalities", choices=HAND_DRIVES)
+    """How the 5 servo commands reach the 11 joints: ``equalities`` (5 position actuators on the
+    leading joints, the 6 others following through soft 1:1 equality constraints, the dexterity
+    MJCF's scheme) or ``all-joints`` (11 position actuators, each follower given its leader's
+    target, with no equality: the authors' Isaac Gym scheme, every joint a drive with the URDF's
+    effort limit). Each actuator has ``hand_kp`` and ``hand_forcerange``."""
     hand_joint_damping: float = bounded(1.0, ge=0)
     """Damping of the 11 hand joints (N·m·s/rad). 1.0 is the dexterity MJCF's class default; the
     authors' URDF has 0.1. At a 0.75 N·m servo limit, 1.0 caps a finger's closing speed at
@@ -300,6 +308,10 @@ class EnvConfig(_Checked):
     context: str = bounded("none", choices=CONTEXTS)
     """``bbox``: the bin task also observes every other object's bounding box (pose + extents,
     with a mask), read by a permutation-invariant encoder; ``none``: the paper (target only)."""
+    observe_fingertips: bool = False
+    """Append the 5 fingertip pad positions (world frame, m; thumb, index, middle, ring, little)
+    to ``proprio`` (20 -> 35 values), as the authors' Isaac Gym task observes them; default off
+    (the paper's proprioception: palm pose and joint angles)."""
     backend: str = bounded("cpu", choices=BACKENDS)
     objects: str = "builtin"
     """Object set: ``builtin``, ``ycb``, ``all``, or a comma list of names."""
@@ -545,6 +557,37 @@ def read_train_config(path: Path) -> TrainConfig:
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise TrainerError(f"{path} is unreadable ({exc}): {fix}") from None
     return train_config_from_dict(values, str(path))
+
+
+# --- command-line overrides (bench/graspability.py, bench/env_throughput.py) ----------------
+def parse_value(text: str) -> Any:
+    """A command-line value (the benchmarks' ``--set KEY=VALUE``) as TOML reads it (``0.75``,
+    ``true``, ``[1, 2]``); a bare word that is not TOML (``hulls``) is a string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def parse_assignment(text: str, option: str) -> tuple[str, str]:
+    """``KEY=VALUE`` -> (key, value text); anything else is a one-line error naming ``option``."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip() or not value.strip():
+        raise TrainerError(f"{option} {text!r}: write KEY=VALUE, e.g. robot.hand_geometry=hulls")
+    return key.strip(), value.strip()
+
+
+def dotted_overrides(values: Mapping[str, Any]) -> dict[str, Any]:
+    """Dotted keys -> ``load_env_config`` keyword overrides (``section.field`` becomes a dict of
+    the section's fields; a key without a dot is a top-level field)."""
+    out: dict[str, Any] = {}
+    for key, value in values.items():
+        section, dot, name = key.partition(".")
+        if dot:
+            out.setdefault(section, {})[name] = value
+        else:
+            out[key] = value
+    return out
 
 
 def check_device(device: str, where: str, fix: str) -> None:

@@ -191,7 +191,7 @@ def _merge(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
 
 def measure(
     family_name: str, variant_name: str, variant: Variant, objects: Sequence[str], trials: int,
-    seed: int = 0, config_path: Path | None = None, **env: Any,
+    seed: int = 0, config_path: Path | None = None, hold: bool = False, **env: Any,
 ) -> list[dict]:
     """Run ``trials`` randomized trials of ``variant`` on each object (one batch of
     ``trials * len(objects)`` envs, the lift task, seed ``seed``: the same initial states for
@@ -199,7 +199,12 @@ def measure(
 
     ``env``: more ``load_env_config`` overrides (data_dir, backend, device, reward, ...) under
     the variant's own. The initial states depend on the batch's size and objects: the same
-    objects, trials and seed give the same trials."""
+    objects, trials and seed give the same trials.
+
+    ``hold`` (CPU backend): each trial that ends the script lifted is probed by
+    ``hold.measure_hold``; each row gains ``held_end`` (how many the hand held through the
+    probe's hold) and their medians ``slip_mm_s``, ``grip_n`` and ``pull_ratio`` (empty
+    without such a trial)."""
     from trainer.config import check_device, load_env_config
     from trainer.grasps.outcomes import outcome_rows
     from trainer.objects import resolve_names
@@ -214,8 +219,45 @@ def measure(
     try:
         trajectory = record_grasp(grasp_env, variant.script)
         ids = grasp_env.target_objects()
+        holds = _probe_holds(grasp_env, trajectory.success[-1]) if hold else None
     finally:
         grasp_env.close()
     script = variant.script
-    return outcome_rows(names, ids, trajectory, script.close_window, script.pushed_at,
+    rows = outcome_rows(names, ids, trajectory, script.close_window, script.pushed_at,
                         family=family_name, variant=variant_name)
+    if holds is not None:
+        _add_hold_columns(rows, names, ids.cpu(), holds)
+    return rows
+
+
+def _probe_holds(env: Any, held: Any) -> dict[int, Any]:
+    """Env id -> ``Hold`` for every env whose target is lifted at the script's end."""
+    from trainer.assets.scene import slot_name
+    from trainer.grasps.hold import measure_hold
+
+    slots = env.state["target_slot"].cpu()
+    out = {}
+    for i in held.nonzero()[:, 0].tolist():
+        try:
+            model, data = env.backend.snapshot(i)
+        except NotImplementedError as exc:
+            raise TrainerError(f"the hold probe needs the cpu backend: {exc}") from None
+        out[i] = measure_hold(model, data, model.body(slot_name(int(slots[i]))).id)
+    return out
+
+
+def _add_hold_columns(rows: list[dict], names: Sequence[str], ids: Any,
+                      holds: dict[int, Any]) -> None:
+    """Each object's row gains ``held_end`` and the medians of its holds' measurements."""
+    import statistics
+
+    by_name = {row["object"]: row for row in rows}
+    for k, name in enumerate(names):
+        if name not in by_name:
+            continue
+        mine = [h for i, h in holds.items() if int(ids[i]) == k and h.held]
+        row = by_name[name]
+        row["held_end"] = len(mine)
+        for key, get in (("slip_mm_s", lambda h: h.slip_mm_s), ("grip_n", lambda h: h.grip_n),
+                         ("pull_ratio", lambda h: h.pull_ratio)):
+            row[key] = round(statistics.median(get(h) for h in mine), 3) if mine else ""

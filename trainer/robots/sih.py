@@ -10,8 +10,10 @@ The palm is a box either way (no palm mesh was readable). Every collision geom i
 palm frame, fingers along +z, palmar side +y. Fingers sit at their physical x (see the x-mirror
 note below).
 
-Drives: 5 position actuators (``ACTUATORS``) on the leading joints, the other joints following
-by 1:1 equality couplings (``COUPLINGS``). Action value -1 commands a DoF open, +1 closed.
+Drives (``[robot] hand_drive``): 5 position actuators (``ACTUATORS``) on the leading joints, the
+other joints following by 1:1 equality couplings (``COUPLINGS``) (``equalities``, the default);
+or ``all-joints``: those 5 plus one position actuator per follower joint (``FOLLOWER_ACTUATORS``),
+each given its leader's target, no equalities. Action value -1 commands a DoF open, +1 closed.
 """
 
 from __future__ import annotations
@@ -86,6 +88,11 @@ ACTUATORS = (
     ("a_rf_lf", "rf_proximal", 0.0, -1.571),
 )
 """The 5 actuators: name, driven joint, value when "open" (action -1), when "closed" (+1)."""
+FOLLOWER_ACTUATORS = tuple(
+    (f"a_{follower}", follower, [a[1] for a in ACTUATORS].index(leader))
+    for follower, leader in COUPLINGS
+)
+"""``all-joints`` only: name, driven follower joint, index into ``ACTUATORS`` of its leader."""
 FINGERTIPS = ("tip_th", "tip_if", "tip_mf", "tip_rf", "tip_lf")
 """Fingertip sites in observation order (thumb, index, middle, ring, little)."""
 
@@ -191,12 +198,13 @@ def add_sih_hand(
 ) -> mujoco.MjsBody:
     """Add the hand's palm as a child of ``parent`` at ``pos``/``quat`` (wxyz); return the palm.
 
-    Adds 11 hinge joints (``JOINTS``), 6 coupling equalities, 5 position actuators
-    (``ACTUATORS``), the fingertip sites (``FINGERTIPS``), a ``palm`` site at the palm keypoint,
-    and the published self-collision exclusions. Its collision geoms are tagged ``hand``: the
-    scene applies the hand's contact material (``geomgrasp.materials.apply_materials``).
-    ``robot.hand_geometry`` picks capsules or hulls for the links, ``robot.hand_joint_damping``
-    the joints' damping.
+    Adds 11 hinge joints (``JOINTS``), 5 position actuators (``ACTUATORS``) and either 6
+    coupling equalities or (``robot.hand_drive = "all-joints"``) 6 more position actuators
+    (``FOLLOWER_ACTUATORS``, after the 5), the fingertip sites (``FINGERTIPS``), a ``palm`` site
+    at the palm keypoint, and the published self-collision exclusions. Its collision geoms are
+    tagged ``hand``: the scene applies the hand's contact material
+    (``geomgrasp.materials.apply_materials``). ``robot.hand_geometry`` picks capsules or hulls
+    for the links, ``robot.hand_joint_damping`` the joints' damping.
     """
     hulls = robot.hand_geometry == "hulls"
     damping = robot.hand_joint_damping
@@ -272,20 +280,26 @@ def add_sih_hand(
         exclude = spec.add_exclude()
         exclude.bodyname1 = body1
         exclude.bodyname2 = body2
-    for follower, leader in COUPLINGS:
-        eq = spec.add_equality()
-        eq.name = f"couple_{follower}"
-        eq.type = mujoco.mjtEq.mjEQ_JOINT
-        eq.name1 = follower
-        eq.name2 = leader
-        eq.data[:5] = [0.0, 1.0, 0.0, 0.0, 0.0]
-    for name, joint, open_value, closed_value in ACTUATORS:
+    all_joints = robot.hand_drive == "all-joints"
+    if not all_joints:
+        for follower, leader in COUPLINGS:
+            eq = spec.add_equality()
+            eq.name = f"couple_{follower}"
+            eq.type = mujoco.mjtEq.mjEQ_JOINT
+            eq.name1 = follower
+            eq.name2 = leader
+            eq.data[:5] = [0.0, 1.0, 0.0, 0.0, 0.0]
+    drives = [(name, joint, (open_value, closed_value))
+              for name, joint, open_value, closed_value in ACTUATORS]
+    if all_joints:
+        drives += [(name, joint, ACTUATORS[leader][2:])
+                   for name, joint, leader in FOLLOWER_ACTUATORS]
+    for name, joint, ends in drives:
         act = spec.add_actuator()
         act.name = name
         act.target = joint
         act.trntype = mujoco.mjtTrn.mjTRN_JOINT
-        low, high = sorted((open_value, closed_value))
-        act.ctrlrange = (low, high)
+        act.ctrlrange = tuple(sorted(ends))
         act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
         act.forcerange = (-robot.hand_forcerange, robot.hand_forcerange)
         act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
@@ -299,7 +313,9 @@ class SIHHand:
     becomes actuator targets (and back, for holding a grasp).
 
     After ``index``: ``qpos`` (11,) qpos addresses of ``JOINTS``; ``actuators`` (5,) actuator
-    ids of ``ACTUATORS``; ``open`` and ``closed`` (5,) their targets (rad) at action -1 and +1.
+    ids of ``ACTUATORS``; ``open`` and ``closed`` (5,) their targets (rad) at action -1 and +1;
+    ``followers`` (F,) the ids of ``FOLLOWER_ACTUATORS`` (F = 6 with ``all-joints``, else 0)
+    and ``follower_leader`` (F,) the index into the 5 whose target each copies.
     """
 
     action_dim = len(ACTUATORS)
@@ -325,13 +341,24 @@ class SIHHand:
         self.actuators = torch.tensor([model.actuator(a[0]).id for a in ACTUATORS], device=device)
         self.open = torch.tensor([a[2] for a in ACTUATORS], device=device)
         self.closed = torch.tensor([a[3] for a in ACTUATORS], device=device)
+        followers = FOLLOWER_ACTUATORS if self.cfg.hand_drive == "all-joints" else ()
+        self.followers = torch.tensor([model.actuator(f[0]).id for f in followers],
+                                      dtype=torch.long, device=device)
+        self.follower_leader = torch.tensor([f[2] for f in followers], dtype=torch.long,
+                                            device=device)
+
+    def _write(self, ctrl: torch.Tensor, hand: torch.Tensor) -> None:
+        """Set the 5 servo targets ``hand`` (..., 5) in ``ctrl`` (..., nu), in place, and each
+        follower actuator's target to its leader's."""
+        ctrl[..., self.actuators] = hand
+        ctrl[..., self.followers] = hand[..., self.follower_leader]
 
     def home(self, qpos: torch.Tensor, ctrl: torch.Tensor) -> None:
         """Write the home hand into one state's qpos (nq,) and ctrl (nu,): open, with the
         thumb opposed (its rotation closed, joint and target)."""
         hand = self.open.clone()
         hand[0] = self.closed[0]  # thumb rotation: opposed
-        ctrl[self.actuators] = hand
+        self._write(ctrl, hand)
         qpos[self.qpos[0]] = hand[0]
 
     @property
@@ -356,7 +383,7 @@ class SIHHand:
         else:
             hand = self.open + 0.5 * (action + 1.0) * (self.closed - self.open)
         ctrl = ctrl.clone()
-        ctrl[:, self.actuators] = hand
+        self._write(ctrl, hand)
         return ctrl
 
     def action(self, ctrl: torch.Tensor) -> torch.Tensor:

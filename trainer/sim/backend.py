@@ -103,6 +103,12 @@ class SimBackend(ABC):
             self._render_models[layout] = self._render_model(layout)
         return self._render_models[layout]
 
+    def snapshot(self, env_id: int) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        """Env ``env_id``'s stepping model and a new ``MjData`` holding its current state and
+        held controls (forward-computed): for probes that step one env on its own
+        (``trainer.grasps.hold``). Backends that cannot copy a state out raise."""
+        raise NotImplementedError(f"{type(self).__name__} cannot copy an env's state out")
+
     @abstractmethod
     def step_held(self) -> None:
         """One control period with the controls already held and nothing else (no writes, no

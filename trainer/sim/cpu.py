@@ -273,5 +273,13 @@ class MujocoCPUBackend(SimBackend):
     def step_held(self) -> None:
         self._advance()
 
+    def snapshot(self, env_id: int) -> tuple[mujoco.MjModel, mujoco.MjData]:  # noqa: D102
+        model = self.models[int(self.env_layout[env_id])]
+        data = mujoco.MjData(model)
+        mujoco.mj_setState(model, data, self._state[env_id], FULL)
+        mujoco.mj_setState(model, data, self._control[env_id, 0], CONTROL)
+        mujoco.mj_forward(model, data)
+        return model, data
+
     def close(self) -> None:
         self._pool.shutdown(wait=True)

@@ -13,6 +13,7 @@ and the task hooks ``_get_obs``, ``_get_reward``, ``_get_termination``.
 
 Output keys (batch E; see ``trainer.tasks.observation_spec``):
 - ``proprio`` (E, 20): palm keypoint position (3, m), palm orientation (6-d), hand joints (11, rad)
+  (E, 35) with ``observe_fingertips``: then the 5 fingertip pads' positions (15, m, world)
 - ``object``: the target's representation (``trainer.representations``), (E, D) or (E, N, 3)
 - ``context`` (E, K-1, 10) and ``context_mask`` (E, K-1): the other objects' boxes (bin task
   with ``context = "bbox"`` only)
@@ -466,7 +467,10 @@ class GraspTask(EnvBase):
     ) -> dict[str, torch.Tensor]:
         """The robot's proprioception and the target's representation, then what the task adds
         (``_extra_obs``)."""
-        proprio = torch.cat([palm_pos, rotation_6d(palm_rot), qpos[:, self.hand_qpos]], dim=-1)
+        parts = [palm_pos, rotation_6d(palm_rot), qpos[:, self.hand_qpos]]
+        if self.cfg.observe_fingertips:
+            parts.append(tips.reshape(tips.shape[0], -1))
+        proprio = torch.cat(parts, dim=-1)
         obj = object_representation(
             self.cfg.representation, self.objects, target_id, obj_pos, obj_quat, tips
         )

@@ -134,6 +134,13 @@ def reward_output_key(name: str) -> str:
 # --- observations -------------------------------------------------------------------------------
 PROPRIO_DIM = 20
 """Palm keypoint position (3), palm orientation (6-d), hand joints (11)."""
+FINGERTIPS_DIM = 15
+"""``observe_fingertips``: the 5 fingertip pad positions (3 each), after the 20."""
+
+
+def proprio_size(cfg: EnvConfig) -> int:
+    """Values in ``proprio``: ``PROPRIO_DIM``, plus ``FINGERTIPS_DIM`` if observed."""
+    return PROPRIO_DIM + (FINGERTIPS_DIM if cfg.observe_fingertips else 0)
 CONTEXT_DIM = 10
 """One other object's box: centre (3), quaternion (4), full extents (3)."""
 
@@ -154,7 +161,7 @@ class ObservationTerm:
 
 
 OBSERVATION_TERMS: tuple[ObservationTerm, ...] = (
-    ObservationTerm("proprio", lambda cfg: (PROPRIO_DIM,)),
+    ObservationTerm("proprio", lambda cfg: (proprio_size(cfg),)),
     # The target's representation (trainer.representations), (D,) or (N, 3).
     ObservationTerm("object", lambda cfg: representation_shape(cfg.representation)),
     # The other objects' boxes and which of them are still on the table (bin task, context).

@@ -1,0 +1,132 @@
+"""The hold probe: how firmly a grasp holds its target once lifted (issue 33's slip and pull
+targets), measured on one env's state copied out of the backend (``SimBackend.snapshot``).
+
+From the state at the end of a scripted grasp, with the hand's controls held:
+
+1. *settle* for ``SETTLE_S`` seconds, then *hold* for ``HOLD_S``: the slip speed is how fast
+   the target moves relative to the palm frame (mm/s); the grip force is the summed normal force
+   of the hand-target contacts, and the support capacity the largest upward load those contacts
+   can carry with their normal forces as measured: per contact, its normal force's upward share
+   (negative for a palm pressing down on the target: that is a load) plus its friction
+   coefficient times the normal force times the share of the vertical in its tangent plane
+   (friction pointed straight up), summed (N); both averaged over the hold;
+2. *pull*: a downward force on the target grows by ``PULL_RATE`` N/s until the target has moved
+   ``SLIP_MM`` relative to the palm (or ``MAX_PULL`` is reached). The pull ratio is the load
+   held at that moment (the target's weight plus the pull) over the support capacity measured
+   while holding: 1.0 means the grip resisted everything friction times its force allows
+   (the squeeze may rise under load, so a ratio above 1 is possible). Soft contacts creep under
+   a tangential load below the friction limit, so a ratio well below 1 names creep.
+
+One env at a time on a plain ``MjData`` (a probe, not a hot path: a few trials per object).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from trainer.assets.collision import BIT_HAND
+
+SETTLE_S = 0.2
+HOLD_S = 1.0
+PULL_RATE = 5.0
+"""N/s: how fast the downward pull grows."""
+SLIP_MM = 5.0
+"""mm: the target's move relative to the palm that ends the pull (it slipped)."""
+MAX_PULL = 50.0
+"""N: the pull stops here even if the target did not slip."""
+DROP_MM = 20.0
+"""mm: a target that moved this far relative to the palm while settling and holding, or that
+no hand geom touches at the hold's end, was not held (it was falling when the script ended)."""
+
+
+@dataclass(frozen=True)
+class Hold:
+    """One held target's measurements (``measure_hold``)."""
+
+    slip_mm_s: float
+    """Mean speed of the target relative to the palm frame during the hold (mm/s)."""
+    grip_n: float
+    """Summed normal force of the hand-target contacts, mean over the hold (N)."""
+    capacity_n: float
+    """The upward load the contacts can carry at their measured normal forces N, mean over the
+    hold (N): the sum of N (n_z + mu sqrt(1 - n_z^2)), n the contact's normal pushing on the
+    target, mu its friction coefficient."""
+    weight_n: float
+    """The target's weight (N)."""
+    pull_n: float
+    """The downward pull at which the target slipped ``SLIP_MM`` (N); ``MAX_PULL`` if never."""
+    held: bool
+    """Whether the hand held the target through the settle and hold (``DROP_MM``); the other
+    fields of a target that was not held measure a fall, not a grip."""
+
+    @property
+    def pull_ratio(self) -> float:
+        """(weight + pull) / friction capacity; NaN without contact."""
+        if self.capacity_n <= 0:
+            return math.nan
+        return (self.weight_n + self.pull_n) / self.capacity_n
+
+
+def _palm_frame(data: mujoco.MjData, palm: int, body: int) -> np.ndarray:
+    """(3,) the body's position in the palm frame (m)."""
+    return data.xmat[palm].reshape(3, 3).T @ (data.xpos[body] - data.xpos[palm])
+
+
+def _grip(model: mujoco.MjModel, data: mujoco.MjData, target: int,
+          force: np.ndarray) -> tuple[float, float]:
+    """(summed normal force, support capacity) of the hand-target contacts (N): see
+    ``Hold.capacity_n``."""
+    ncon = data.ncon
+    if ncon == 0:
+        return 0.0, 0.0
+    g1, g2 = data.contact.geom1[:ncon], data.contact.geom2[:ncon]
+    hand = (model.geom_contype & BIT_HAND) != 0
+    on_target = model.geom_bodyid == target
+    pair = (hand[g1] & on_target[g2]) | (hand[g2] & on_target[g1])
+    normal = capacity = 0.0
+    for c in np.flatnonzero(pair):
+        mujoco.mj_contactForce(model, data, int(c), force)
+        normal += force[0]
+        # frame row 0 is the normal, from geom1 toward geom2: the force pushes geom2 along it.
+        n_z = data.contact.frame[c, 2] * (1.0 if on_target[g2[c]] else -1.0)
+        friction = data.contact.friction[c, 0] * math.sqrt(max(0.0, 1.0 - n_z**2))
+        capacity += force[0] * (n_z + friction)
+    return normal, capacity
+
+
+def measure_hold(model: mujoco.MjModel, data: mujoco.MjData, target: int) -> Hold:
+    """Settle, hold and pull the target body ``target`` from the state in ``data`` (modified),
+    the controls and mocap targets as they are (the hand holding its grasp)."""
+    palm = model.body("palm").id
+    dt = model.opt.timestep
+    force = np.zeros(6)
+    mujoco.mj_forward(model, data)
+    first = _palm_frame(data, palm, target)
+    for _ in range(round(SETTLE_S / dt)):
+        mujoco.mj_step(model, data)
+    start = _palm_frame(data, palm, target)
+    steps = round(HOLD_S / dt)
+    normal = capacity = 0.0
+    for _ in range(steps):
+        mujoco.mj_step(model, data)
+        n, c = _grip(model, data, target, force)
+        normal += n / steps
+        capacity += c / steps
+    held = _palm_frame(data, palm, target)
+    slip = float(np.linalg.norm(held - start)) * 1000.0 / HOLD_S
+    touching = _grip(model, data, target, force)[0] > 0
+    kept = touching and float(np.linalg.norm(held - first)) * 1000.0 < DROP_MM
+    weight = float(model.body_subtreemass[target] * np.linalg.norm(model.opt.gravity))
+    pull = 0.0
+    while pull < MAX_PULL:
+        pull += PULL_RATE * dt
+        data.xfrc_applied[target, 2] = -pull
+        mujoco.mj_step(model, data)
+        if np.linalg.norm(_palm_frame(data, palm, target) - held) * 1000.0 > SLIP_MM:
+            break
+    data.xfrc_applied[target] = 0.0
+    return Hold(slip, float(normal), float(capacity), weight, min(pull, MAX_PULL), kept)
