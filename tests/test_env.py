@@ -317,3 +317,27 @@ def test_observed_fingertips_extend_proprio_with_the_pad_positions(builtin_data:
     finally:
         env.close()
         plain.close()
+
+
+def test_observed_hand_targets_follow_relative_actions(builtin_data: Config) -> None:
+    """``observe_hand_targets``: ``proprio`` ends with the 5 servo targets on the actions'
+    scale (home: thumb rotation +1, the rest -1 open); with relative actions a +1 action moves
+    each by ``hand_relative_step`` of its range (in [-1, 1] units: 2 * step / span)."""
+    cfg = load_env_config(num_envs=2, objects="builtin", representation="com",
+                          data_dir=builtin_data.data_dir, observe_hand_targets=True,
+                          robot={"hand_action": "relative"})
+    env = make_env(cfg, seed=0)
+    try:
+        check_env_specs(env)
+        assert env.observation_spec["proprio"].shape == (2, 25)
+        targets = env.reset()["proprio"][:, 20:]
+        torch.testing.assert_close(targets, torch.tensor([[1.0, -1, -1, -1, -1]] * 2))
+        action = torch.zeros(2, 11)
+        action[:, 7:] = 1.0  # close the thumb's flexion and the fingers by one step
+        td = env.step(TensorDict({"action": action}, batch_size=[2]))
+        span = (env.robot.hand.closed - env.robot.hand.open).abs()
+        step = 2 * cfg.robot.hand_relative_step / span
+        expected = torch.tensor([1.0, -1, -1, -1, -1]) + torch.cat([torch.zeros(1), step[1:]])
+        torch.testing.assert_close(td["next", "proprio"][:, 20:], expected.expand(2, 5))
+    finally:
+        env.close()

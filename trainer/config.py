@@ -312,6 +312,10 @@ class EnvConfig(_Checked):
     """Append the 5 fingertip pad positions (world frame, m; thumb, index, middle, ring, little)
     to ``proprio`` (20 -> 35 values), as the authors' Isaac Gym task observes them; default off
     (the paper's proprioception: palm pose and joint angles)."""
+    observe_hand_targets: bool = False
+    """Append the hand's 5 servo targets (-1 open, +1 closed) to ``proprio`` (after the
+    fingertips if observed): with relative hand actions the targets are controller state that
+    the joint angles do not show (a blocked finger's angle stops, its target does not)."""
     backend: str = bounded("cpu", choices=BACKENDS)
     objects: str = "builtin"
     """Object set: ``builtin``, ``ycb``, ``all``, or a comma list of names."""

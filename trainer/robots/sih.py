@@ -386,11 +386,15 @@ class SIHHand:
         self._write(ctrl, hand)
         return ctrl
 
+    def targets(self, ctrl: torch.Tensor) -> torch.Tensor:
+        """(E, 5) the servo targets in ``ctrl`` (E, nu) on the absolute actions' scale: -1 open,
+        +1 closed."""
+        span = self.closed - self.open
+        return 2.0 * (ctrl[:, self.actuators] - self.open) / span - 1.0
+
     def action(self, ctrl: torch.Tensor) -> torch.Tensor:
         """(E, 5) the hand actions that keep the targets in ``ctrl`` (E, nu): those targets'
         values (``absolute``), or no change (``relative``)."""
-        hand = ctrl[:, self.actuators]
         if self.cfg.hand_action == "relative":
-            return torch.zeros_like(hand)
-        span = self.closed - self.open
-        return 2.0 * (hand - self.open) / span - 1.0
+            return torch.zeros_like(ctrl[:, self.actuators])
+        return self.targets(ctrl)

@@ -13,7 +13,8 @@ and the task hooks ``_get_obs``, ``_get_reward``, ``_get_termination``.
 
 Output keys (batch E; see ``trainer.tasks.observation_spec``):
 - ``proprio`` (E, 20): palm keypoint position (3, m), palm orientation (6-d), hand joints (11, rad)
-  (E, 35) with ``observe_fingertips``: then the 5 fingertip pads' positions (15, m, world)
+  (E, 35) with ``observe_fingertips``: then the 5 fingertip pads' positions (15, m, world);
+  with ``observe_hand_targets`` then (last) the 5 servo targets (-1 open, +1 closed)
 - ``object``: the target's representation (``trainer.representations``), (E, D) or (E, N, 3)
 - ``context`` (E, K-1, 10) and ``context_mask`` (E, K-1): the other objects' boxes (bin task
   with ``context = "bbox"`` only)
@@ -369,6 +370,10 @@ class GraspTask(EnvBase):
             qpos, s["start_height"], s["step_count"], s["target_slot"], self.h_bar
         )
         s["palm_pos"] = palm_pos
+        if self.cfg.observe_hand_targets:
+            # Controller state, not simulated state: joined here, outside the pure function.
+            targets = self.robot.hand.targets(s["ctrl"])
+            obs = {**obs, "proprio": torch.cat([obs["proprio"], targets], dim=-1)}
         lift = terms.pop("lift_height")
         success, terminated, truncated = flags
         unstable = self.backend.unstable() | self._thrown(qpos)

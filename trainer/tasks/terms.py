@@ -136,11 +136,15 @@ PROPRIO_DIM = 20
 """Palm keypoint position (3), palm orientation (6-d), hand joints (11)."""
 FINGERTIPS_DIM = 15
 """``observe_fingertips``: the 5 fingertip pad positions (3 each), after the 20."""
+HAND_TARGETS_DIM = 5
+"""``observe_hand_targets``: the 5 servo targets, last."""
 
 
 def proprio_size(cfg: EnvConfig) -> int:
-    """Values in ``proprio``: ``PROPRIO_DIM``, plus ``FINGERTIPS_DIM`` if observed."""
-    return PROPRIO_DIM + (FINGERTIPS_DIM if cfg.observe_fingertips else 0)
+    """Values in ``proprio``: ``PROPRIO_DIM``, plus ``FINGERTIPS_DIM`` and ``HAND_TARGETS_DIM``
+    where observed."""
+    return (PROPRIO_DIM + (FINGERTIPS_DIM if cfg.observe_fingertips else 0)
+            + (HAND_TARGETS_DIM if cfg.observe_hand_targets else 0))
 CONTEXT_DIM = 10
 """One other object's box: centre (3), quaternion (4), full extents (3)."""
 
