@@ -146,6 +146,9 @@ def run(args: argparse.Namespace) -> None:
 
     if args.trials < 1:
         raise UserError(f"--trials {args.trials}: must be at least 1")
+    if args.hold and args.backend == "warp":
+        raise UserError("--hold probes states copied out of the cpu backend: drop --hold or "
+                        "use --backend cpu")
     families = parse_families(args.family)
     configs = configurations(args.sets, args.grids)
     env: dict[str, Any] = {k: v for k, v in {

@@ -47,6 +47,7 @@ def test_values_parse_as_toml_and_bare_words_as_strings() -> None:
         (["--family", "grab"], "error: unknown grasp family 'grab': choose one of top, pinch"),
         (["--family", "pinch:squeeze"], "error: unknown variant 'squeeze' of grasp family"),
         (["--objects", "999_nothing"], "error: "),
+        (["--hold", "--backend", "warp"], "error: --hold probes states copied out of the cpu"),
         (["--set", "robot.hand_geometry=spheres"],
          'error: [robot] hand_geometry = "spheres": must be one of "capsules", "hulls"'),
     ],

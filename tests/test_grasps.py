@@ -228,3 +228,22 @@ def test_hold_probe_measures_a_held_grasp_and_a_free_fall(builtin_data: Config) 
         assert rest.held and rest.slip_mm_s < 0.01
         assert rest.capacity_n == pytest.approx(0.1 * 9.81, rel=0.01)
         assert rest.pull_ratio > 5
+
+
+def test_demo_runs_a_named_family_variant(builtin_data: Config, monkeypatch: pytest.MonkeyPatch,
+                                          capsys) -> None:  # noqa: ANN001
+    """``trainer demo --family pinch:noslip`` runs the pinch with its variant's physics (the
+    no-slip solver) and prints one line per object; an unknown family is a one-line error."""
+    monkeypatch.setattr(sys, "argv", [
+        "trainer", "demo", "--family", "pinch:noslip", "--objects", "builtin_dice",
+        "--trials", "1", "--video", "", "--data-dir", str(builtin_data.data_dir),
+    ])
+    trainer.cli.main()
+    assert "builtin_dice  lifted " in capsys.readouterr().out
+    monkeypatch.setattr(sys, "argv", ["trainer", "demo", "--family", "palm", "--data-dir",
+                                      str(builtin_data.data_dir)])
+    with pytest.raises(SystemExit) as exit_info:
+        trainer.cli.main()
+    assert exit_info.value.code == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: unknown grasp family 'palm'") and "\n" not in err

@@ -97,16 +97,20 @@ def _config_options(func):  # noqa: ANN001, ANN202
 @click.option("--trials", default=10, show_default=True, help="Randomized trials per object.")
 @click.option("--robot", type=click.Choice(ROBOTS), default="ur5e", show_default=True)
 @click.option("--seed", default=0, show_default=True, help="Seed of the initial states.")
+@click.option("--family", "family_spec", default="top", show_default=True,
+              help="Grasp family, optionally FAMILY:VARIANT (e.g. pinch:press6+noslip); the "
+              "variant's physics overrides apply.")
 @click.option(
     "--video", type=click.Path(path_type=Path, dir_okay=False), default=Path("demo.mp4"),
     show_default=True, help="Video of one trial per object (.mp4 or .gif); '' for none.",
 )
 @_config_options
 def demo(
-    objects: str, trials: int, robot: str, seed: int, video: Path, config_path: Path | None,
-    data_dir: Path | None,
+    objects: str, trials: int, robot: str, seed: int, family_spec: str, video: Path,
+    config_path: Path | None, data_dir: Path | None,
 ) -> None:
-    """Scripted grasps (approach from above, close, lift): proof that the hand can grasp.
+    """Scripted grasps (by default the top grasp: approach from above, close, lift): proof that
+    the hand can grasp.
 
     Runs TRIALS randomized trials per object at once (the lift task, one object on the table,
     whatever task the config names) and prints how many lifted the object by 0.2 m. The video
@@ -114,12 +118,14 @@ def demo(
     """
     _at_least("--trials", trials, 1)
     _at_least("--seed", seed, 0)
-    from trainer.grasps import TopGrasp, run_scripted_grasp
+    from trainer.grasps import family_variants, run_scripted_grasp
     from trainer.objects import resolve_names
     from trainer.tasks import make_env
 
+    family_name, _, variant_name = family_spec.partition(":")
+    variant = family_variants(family_name, [variant_name or "base"])[variant_name or "base"]
     overrides = {"data_dir": data_dir} if data_dir else {}
-    cfg = load_env_config(config_path, task="lift", context="none", **overrides)
+    cfg = load_env_config(config_path, task="lift", context="none", **overrides, **variant.env)
     check_device(cfg.device, f"device {cfg.device!r} in {config_path}", 'set device = "cpu"')
     names = resolve_names(objects, cfg.data_dir)
     cfg = dataclasses.replace(
@@ -134,7 +140,7 @@ def demo(
 
         firsts = [int((targets == k).nonzero()[0, 0]) for k in range(len(names))]
         recorder = EnvRecorder(env, firsts[:4], width=320, height=240)
-    script = TopGrasp()
+    script = variant.script
     with click.progressbar(length=script.total_steps, label="scripted grasp") as bar:
 
         def on_step(step: int) -> None:
