@@ -62,8 +62,7 @@ from trainer.config import (
     check_device,
     dotted_overrides,
     load_env_config,
-    parse_assignment,
-    parse_value,
+    parse_sets,
 )
 from trainer.errors import TrainerError
 from trainer.objects import resolve_names
@@ -177,9 +176,7 @@ def variants(args: argparse.Namespace) -> list[tuple[str, dict]]:
         out = [(f"noslip {v}", {"physics": {"noslip_iterations": int(v)}})
                for v in args.noslip.split(",")]
     if args.sets:
-        values = dict(parse_assignment(text, "--set") for text in args.sets)
-        out.append((" ".join(args.sets),
-                    dotted_overrides({k: parse_value(v) for k, v in values.items()})))
+        out.append((" ".join(args.sets), dotted_overrides(parse_sets(args.sets))))
     return out
 
 

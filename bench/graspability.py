@@ -41,7 +41,7 @@ from typing import Any
 from geomgrasp.errors import UserError
 from geomgrasp.files import atomic_path
 from trainer.config import dotted_overrides as overrides
-from trainer.config import parse_assignment, parse_value
+from trainer.config import parse_assignment, parse_sets, parse_value
 
 COLUMNS = ("object", "family", "trials", "lifted", "dropped", "no_grip", "pushed")
 """The CSV's leading columns, as the graspability benchmark names them (issue 33)."""
@@ -51,8 +51,7 @@ def configurations(sets: list[str], grids: list[str]) -> list[dict[str, Any]]:
     """The configurations to measure, each a dict of dotted key -> value: the baseline (empty)
     first, then one per combination of the ``grids`` values, each with the ``sets`` values (a
     combination equal to the baseline is not repeated)."""
-    fixed = dict(parse_assignment(s, "--set") for s in sets)
-    fixed = {k: parse_value(v) for k, v in fixed.items()}
+    fixed = parse_sets(sets)
     axes = []
     for g in grids:
         key, values = parse_assignment(g, "--grid")

@@ -84,14 +84,13 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    from trainer.config import dotted_overrides, load_env_config, parse_assignment, parse_value
+    from trainer.config import dotted_overrides, load_env_config, parse_sets
     from trainer.grasps import TopGrasp
     from trainer.objects import resolve_names
     from trainer.tasks import make_env
 
     gammas = [float(g) for g in args.gammas.split(",")]
-    values = dict(parse_assignment(text, "--set") for text in args.sets)
-    extra = dotted_overrides({k: parse_value(v) for k, v in values.items()})
+    extra = dotted_overrides(parse_sets(args.sets))
     if args.data_dir is not None:
         extra["data_dir"] = args.data_dir
     cfg = load_env_config(args.config, task="lift", context="none", representation="com",

@@ -581,6 +581,13 @@ def parse_assignment(text: str, option: str) -> tuple[str, str]:
     return key.strip(), value.strip()
 
 
+def parse_sets(texts: list[str], option: str = "--set") -> dict[str, Any]:
+    """``KEY=VALUE`` texts -> {dotted key: parsed value} (``parse_value``); a malformed one is a
+    one-line error naming ``option``."""
+    pairs = (parse_assignment(text, option) for text in texts)
+    return {key: parse_value(value) for key, value in pairs}
+
+
 def dotted_overrides(values: Mapping[str, Any]) -> dict[str, Any]:
     """Dotted keys -> ``load_env_config`` keyword overrides (``section.field`` becomes a dict of
     the section's fields; a key without a dot is a top-level field)."""

@@ -258,6 +258,5 @@ def _add_hold_columns(rows: list[dict], names: Sequence[str], ids: Any,
         mine = [h for i, h in holds.items() if int(ids[i]) == k and h.held]
         row = by_name[name]
         row["held_end"] = len(mine)
-        for key, get in (("slip_mm_s", lambda h: h.slip_mm_s), ("grip_n", lambda h: h.grip_n),
-                         ("pull_ratio", lambda h: h.pull_ratio)):
-            row[key] = round(statistics.median(get(h) for h in mine), 3) if mine else ""
+        for key in ("slip_mm_s", "grip_n", "pull_ratio"):  # ``Hold`` fields of the same names
+            row[key] = round(statistics.median(getattr(h, key) for h in mine), 3) if mine else ""

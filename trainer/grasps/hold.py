@@ -76,16 +76,14 @@ def _palm_frame(data: mujoco.MjData, palm: int, body: int) -> np.ndarray:
     return data.xmat[palm].reshape(3, 3).T @ (data.xpos[body] - data.xpos[palm])
 
 
-def _grip(model: mujoco.MjModel, data: mujoco.MjData, target: int,
+def _grip(model: mujoco.MjModel, data: mujoco.MjData, hand: np.ndarray, on_target: np.ndarray,
           force: np.ndarray) -> tuple[float, float]:
-    """(summed normal force, support capacity) of the hand-target contacts (N): see
-    ``Hold.capacity_n``."""
+    """(summed normal force, support capacity) of the contacts between ``hand`` and
+    ``on_target`` geoms ((ngeom,) bool masks) (N): see ``Hold.capacity_n``."""
     ncon = data.ncon
     if ncon == 0:
         return 0.0, 0.0
     g1, g2 = data.contact.geom1[:ncon], data.contact.geom2[:ncon]
-    hand = (model.geom_contype & BIT_HAND) != 0
-    on_target = model.geom_bodyid == target
     pair = (hand[g1] & on_target[g2]) | (hand[g2] & on_target[g1])
     normal = capacity = 0.0
     for c in np.flatnonzero(pair):
@@ -104,6 +102,8 @@ def measure_hold(model: mujoco.MjModel, data: mujoco.MjData, target: int) -> Hol
     palm = model.body("palm").id
     dt = model.opt.timestep
     force = np.zeros(6)
+    hand = (model.geom_contype & BIT_HAND) != 0
+    on_target = model.geom_bodyid == target
     mujoco.mj_forward(model, data)
     first = _palm_frame(data, palm, target)
     for _ in range(round(SETTLE_S / dt)):
@@ -113,12 +113,12 @@ def measure_hold(model: mujoco.MjModel, data: mujoco.MjData, target: int) -> Hol
     normal = capacity = 0.0
     for _ in range(steps):
         mujoco.mj_step(model, data)
-        n, c = _grip(model, data, target, force)
+        n, c = _grip(model, data, hand, on_target, force)
         normal += n / steps
         capacity += c / steps
     held = _palm_frame(data, palm, target)
     slip = float(np.linalg.norm(held - start)) * 1000.0 / HOLD_S
-    touching = _grip(model, data, target, force)[0] > 0
+    touching = _grip(model, data, hand, on_target, force)[0] > 0
     kept = touching and float(np.linalg.norm(held - first)) * 1000.0 < DROP_MM
     weight = float(model.body_subtreemass[target] * np.linalg.norm(model.opt.gravity))
     pull = 0.0
