@@ -69,6 +69,7 @@ def cli() -> None:
     Typical use:
       trainer demo                          # scripted grasps + video: the physics can grasp
       trainer grasp --family pinch          # scripted trials, each outcome classified
+      trainer grasp-search --objects NAMES  # search a grasp where no script lifts
       trainer run --repr sq                 # train (run directory under runs/)
       trainer eval runs/NAME                # per-object success table
       trainer report runs/*                 # mean +- std tables and plots over seeds
@@ -132,7 +133,9 @@ def demo(
         cfg, num_envs=trials * len(names), objects=",".join(names),
         robot=dataclasses.replace(cfg.robot, kind=robot),
     )
-    env = make_env(cfg, seed=seed)
+    from trainer.grasps.runner import episode_config
+
+    env = make_env(episode_config(cfg, variant.script), seed=seed)
     targets = env.target_objects().cpu()  # lift: the env's one object, fixed at build
     recorder = None
     if str(video) not in ("", "."):
@@ -163,8 +166,8 @@ def demo(
 
 @cli.command()
 @click.option("--family", "family_name", default="top", show_default=True,
-              help="Grasp family: top (palm down, close, lift) or pinch (thumb tip against "
-              "index tip at table height).")
+              help="Grasp family: top (palm down, close, lift), pinch (thumb tip against "
+              "index tip at table height) or searched (trainer grasp-search's grasps).")
 @click.option("--variants", default="base", show_default=True,
               help="The family's named variants (comma-separated; 'all': every one).")
 @click.option("--grid", is_flag=True, help="Instead of --variants: the family's geometry grid.")
@@ -230,6 +233,119 @@ def grasp(
             write_rows(out, rows)
     if out is not None:
         click.echo(f"\nrows: {out}")
+
+
+@cli.command("grasp-search")
+@click.option("--objects", required=True, help="Object names (comma-separated), one search each.")
+@click.option("--population", default=24, show_default=True,
+              help="Candidate grasps per iteration.")
+@click.option("--trials", default=4, show_default=True,
+              help="Randomized trials per candidate (fresh initial states every iteration).")
+@click.option("--iterations", default=6, show_default=True, help="Cross-entropy iterations.")
+@click.option("--elite", default=5, show_default=True, help="Best candidates refitted to.")
+@click.option("--seed", default=0, show_default=True, help="Seed of the samples and states.")
+@click.option("--spread", default=1.0, show_default=True,
+              help="Scale of the initial sampling std (e.g. 2: positions +-6 cm, turns +-0.6 "
+              "rad).")
+@click.option("--refine", is_flag=True,
+              help="Start from each object's grasp already in the file (default: from the top "
+              "grasp); use with a smaller --spread.")
+@click.option("--out", type=click.Path(path_type=Path, dir_okay=False), default=None,
+              help="Searched-grasp file to add the results to [the package's searched.json, "
+              "which the `searched` grasp family reads].")
+@_config_options
+def grasp_search(
+    objects: str, population: int, trials: int, iterations: int, elite: int, seed: int,
+    spread: float, refine: bool, out: Path | None, config_path: Path | None, data_dir: Path | None,
+) -> None:
+    """Search a grasp for each object (the cross-entropy method over a keyframe grasp's 19
+    parameters, scored on MuJoCo rollouts of the lift task, starting from the top grasp) and
+    add it to the `searched` grasp family.
+
+    Each iteration runs POPULATION x TRIALS envs; the final candidates are re-run on fresh
+    trials and the best is written with its lifts. The configuration (--config: the hand and
+    physics) is stored with the grasps: every object in one file shares it.
+    """
+    for option, value, minimum in (("--population", population, 2), ("--trials", trials, 1),
+                                   ("--iterations", iterations, 1), ("--elite", elite, 2),
+                                   ("--seed", seed, 0)):
+        _at_least(option, value, minimum)
+    if elite > population:
+        raise TrainerError(f"--elite {elite}: must be <= --population {population}")
+    if not spread > 0:
+        raise TrainerError(f"--spread {spread}: must be > 0")
+    import datetime
+    import json
+    import tomllib
+
+    import torch
+
+    from geomgrasp.files import atomic_path
+    from trainer.grasps.families import SEARCHED_PATH, load_searched
+    from trainer.grasps.keyframes import PARAMS, top_grasp_theta
+    from trainer.grasps.search import cem
+    from trainer.objects import resolve_names
+    from trainer.tasks import make_env
+
+    out = out or SEARCHED_PATH
+    config: dict = {}
+    if config_path is not None:
+        try:
+            config = {k: v for k, v in tomllib.loads(config_path.read_text()).items()
+                      if k not in ("ppo", "run", "objects", "num_envs", "data_dir")}
+        except (OSError, tomllib.TOMLDecodeError) as exc:
+            raise TrainerError(f"{config_path}: cannot read it ({exc})") from None
+    data = load_searched(out)
+    if data["objects"] and data["config"] != config:
+        raise TrainerError(
+            f"{out} holds grasps searched with another configuration ({data['config']}): pass "
+            f"that --config, or --out a new file"
+        )
+    overrides = {"data_dir": data_dir} if data_dir else {}
+    cfg = load_env_config(config_path, task="lift", context="none", representation="com",
+                          **overrides)
+    check_device(cfg.device, f"device {cfg.device!r} in {config_path}", 'set device = "cpu"')
+    names = resolve_names(objects, cfg.data_dir)
+    if refine and (missing := [n for n in names if n not in data["objects"]]):
+        raise TrainerError(f"--refine: {out} has no grasp for {', '.join(missing)}: search it "
+                           f"first without --refine")
+    for name in names:
+        start = top_grasp_theta()
+        if refine:
+            start = torch.tensor([data["objects"][name]["theta"][p] for p in PARAMS])
+        env = make_env(dataclasses.replace(cfg, num_envs=population * trials, objects=name),
+                       seed=seed)
+        click.echo(f"\n### {name}: {population} candidates x {trials} trials, "
+                   f"{iterations} iterations\n")
+        click.echo("| iteration | best | mean | lift rate | elite lift rate | s |")
+        click.echo("|---:|---:|---:|---:|---:|---:|")
+        try:
+            result = cem(env, start, population, trials, iterations, elite, seed,
+                         spread=spread, on_iteration=lambda r: click.echo(
+                             f"| {r['iteration']} | {r['best']} | {r['mean']} | {r['lift_rate']} "
+                             f"| {r['elite_lift_rate']} | {r['seconds']} |"))
+        finally:
+            env.close()
+        click.echo(f"\n{name}: best {result.lifted}/{result.final_trials} lifted in its final "
+                   f"trials")
+        data["config"] = config
+        earlier = []
+        if refine:  # the searches this one continued, oldest first
+            previous = data["objects"][name]
+            earlier = [*previous.get("earlier", []),
+                       {k: previous[k] for k in ("lifted", "final_trials", "search", "history")}]
+        data["objects"][name] = {
+            "theta": result.as_dict(), "lifted": result.lifted,
+            "final_trials": result.final_trials,
+            "search": {"population": population, "trials": trials, "iterations": iterations,
+                       "elite": elite, "seed": seed, "spread": spread, "refine": refine,
+                       "date": datetime.date.today().isoformat()},
+            "history": result.history,
+            **({"earlier": earlier} if earlier else {}),
+        }
+        with atomic_path(out) as tmp:
+            tmp.write_text(json.dumps(data, indent=1) + "\n")
+        click.echo(f"written: {out}")
 
 
 @cli.command()

@@ -10,14 +10,16 @@ is a family's parameter scan there.
 from __future__ import annotations
 
 import itertools
+import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from trainer.errors import TrainerError
+from trainer.grasps.keyframes import PARAMS, KeyframeGrasp
 from trainer.grasps.pinch import Pinch
-from trainer.grasps.runner import GraspScript, record_grasp
+from trainer.grasps.runner import GraspScript, episode_config, record_grasp
 from trainer.grasps.top import TopGrasp
 
 TABLE1_OBJECTS = (
@@ -84,6 +86,37 @@ _RIM = replace(_TOP, grasp_depth=0.22, lateral=0.0)
 """The top grid's best geometry for the plate: the fingertips at its rim."""
 _PINCH = Pinch()
 
+SEARCHED_PATH = Path(__file__).with_name("searched.json")
+"""The grasps ``trainer grasp-search`` found, per object, and the configuration (hand,
+physics) they were searched and measured with."""
+
+
+def load_searched(path: Path = SEARCHED_PATH) -> dict[str, Any]:
+    """The searched grasps' file: ``{"config": {...}, "objects": {name: {"theta": {param:
+    value}, ...}}}`` (empty when there is none)."""
+    if not path.is_file():
+        return {"config": {}, "objects": {}}
+    try:
+        data = json.loads(path.read_text())
+        for name, entry in data["objects"].items():
+            missing = [p for p in PARAMS if p not in entry["theta"]]
+            if missing:
+                raise KeyError(f"{name}: {missing[0]}")
+    except (ValueError, KeyError, TypeError) as exc:
+        raise TrainerError(f"{path}: not a searched-grasp file ({exc}): rerun trainer "
+                           f"grasp-search") from None
+    return data
+
+
+def _searched_family() -> Family:
+    data = load_searched()
+    rows = tuple((name, tuple(float(entry["theta"][p]) for p in PARAMS))
+                 for name, entry in sorted(data["objects"].items()))
+    return Family(KeyframeGrasp,
+                  {"base": Variant(KeyframeGrasp(by_object=rows), dict(data["config"]))},
+                  tuple(name for name, _ in rows))
+
+
 FAMILIES: dict[str, Family] = {
     "top": Family(
         TopGrasp,
@@ -149,6 +182,10 @@ FAMILIES: dict[str, Family] = {
         ),
     ),
 }
+FAMILIES["searched"] = _searched_family()
+"""The ``searched`` family: one keyframe grasp per object, found by the cross-entropy search
+of ``search.py`` (``trainer grasp-search``) and read from ``searched.json``; its variant runs
+with the configuration they were searched with."""
 
 
 def family(name: str) -> Family:
@@ -215,7 +252,7 @@ def measure(
     check_device(cfg.device, f"device {cfg.device!r}", 'use device "cpu"')
     names = resolve_names(",".join(objects), cfg.data_dir)
     cfg = replace(cfg, num_envs=trials * len(names), objects=",".join(names))
-    grasp_env = make_env(cfg, seed=seed)
+    grasp_env = make_env(episode_config(cfg, variant.script), seed=seed)
     try:
         trajectory = record_grasp(grasp_env, variant.script)
         ids = grasp_env.target_objects()

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import torch
 from tensordict import TensorDict
@@ -112,6 +112,12 @@ def run_scripted_grasp(
             f"{env.cfg.robot.hand_action!r}: run them with hand_action = \"absolute\""
         )
     script = script or TopGrasp()
+    if script.total_steps > env.cfg.max_steps:
+        raise TrainerError(
+            f"the script runs {script.total_steps} actions, the env's episodes end at "
+            f"max_steps = {env.cfg.max_steps}: build it with max_steps >= {script.total_steps} "
+            f"(runner.episode_config)"
+        )
     env.reset()
     plan: dict = {}
     lifted = torch.zeros(env.num_envs, dtype=torch.bool, device=env.device)
@@ -125,6 +131,14 @@ def run_scripted_grasp(
         if on_step is not None:
             on_step(step)
     return lifted
+
+
+def episode_config(cfg: Any, script: GraspScript) -> Any:
+    """``cfg`` (an ``EnvConfig``) with episodes long enough for ``script`` (a scripted trial
+    is one episode)."""
+    from dataclasses import replace
+
+    return replace(cfg, max_steps=max(cfg.max_steps, script.total_steps))
 
 
 def record_grasp(

@@ -1,0 +1,151 @@
+"""The keyframe grasp and the cross-entropy search behind the ``searched`` grasp family: the
+parameters that reproduce the top grasp mean its pose, the search runs on MuJoCo rollouts and
+writes what the family reads, and its errors are one line."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+import trainer.cli
+from geomprep.config import Config
+from trainer.config import load_env_config
+from trainer.errors import TrainerError
+from trainer.grasps import FAMILIES, TopGrasp, record_grasp
+from trainer.grasps.families import load_searched
+from trainer.grasps.keyframes import DIM, PARAMS, KeyframeGrasp, index, top_grasp_theta
+from trainer.grasps.search import cem
+from trainer.tasks import make_env
+
+
+def _env(data: Config, n: int, objects: str = "builtin_cylinder", seed: int = 5):  # noqa: ANN202
+    cfg = load_env_config(num_envs=n, objects=objects, representation="com",
+                          data_dir=data.data_dir)
+    return make_env(cfg, seed=seed)
+
+
+def test_top_grasp_parameters_mean_the_top_grasp_pose(builtin_data: Config) -> None:
+    """``top_grasp_theta`` puts the palm where the top grasp does, turned as it is, with its
+    hand commands; a parameter moves the pose in the target's grasp frame."""
+    env = _env(builtin_data, 3, "builtin_cylinder,builtin_box,builtin_dice")
+    env.reset()
+    top_plan: dict = {}
+    top_action = TopGrasp().action(env, 0, top_plan)
+    theta = top_grasp_theta()
+    plan = KeyframeGrasp(theta).plan(env)
+    torch.testing.assert_close(plan["goal"], top_plan["goal"], atol=1e-5, rtol=0)
+    torch.testing.assert_close(plan["rot"], top_plan["rot"], atol=1e-5, rtol=0)
+    torch.testing.assert_close(plan["open"], top_action[:, 6:], atol=1e-6, rtol=0)
+    assert torch.equal(plan["drag"], torch.zeros(3, 3))
+    # Raising z by 1 cm raises the goal by 1 cm in every env; x moves it across the palm.
+    moved = theta.clone()
+    moved[index("z")] += 0.01
+    moved[index("x")] += 0.02
+    other = KeyframeGrasp(moved).plan(env)
+    shift = other["goal"] - plan["goal"]
+    torch.testing.assert_close(shift[:, 2], torch.full((3,), 0.01), atol=1e-6, rtol=0)
+    torch.testing.assert_close((shift * plan["rot"][..., 0]).sum(-1), torch.full((3,), 0.02),
+                               atol=1e-6, rtol=0)
+    env.close()
+
+
+def test_search_scores_rollouts_and_keeps_a_lifting_grasp(builtin_data: Config) -> None:
+    """From the top grasp on the built-in cylinder (which it lifts), one iteration of the
+    search and the final re-run: every candidate is a rollout of the lift task, the history
+    says so, and the kept grasp lifts in its final trials."""
+    population, trials = 4, 2
+    env = _env(builtin_data, population * trials)
+    rows: list[dict] = []
+    result = cem(env, top_grasp_theta(), population, trials, 1, 2, seed=0,
+                 on_iteration=rows.append)
+    env.close()
+    assert result.theta.shape == (DIM,)
+    assert rows == result.history and len(rows) == 1
+    assert 0 <= rows[0]["lift_rate"] <= rows[0]["elite_lift_rate"] <= 1
+    assert result.final_trials == population * trials // 4
+    assert result.lifted >= 1
+    assert set(result.as_dict()) == set(PARAMS)
+    with pytest.raises(ValueError, match="needs 8"):
+        cem(_env(builtin_data, 3), top_grasp_theta(), population, trials, 1, 2)
+
+
+def test_grasp_search_command_writes_the_family_file(
+    builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys,  # noqa: ANN001
+) -> None:
+    """``trainer grasp-search`` writes each object's grasp with its configuration; the file
+    reads back as the family's rows, and a keyframe grasp refuses an object it has no row
+    for in one line naming the command that adds it."""
+    out = tmp_path / "searched.json"
+    monkeypatch.setattr(sys, "argv", [
+        "trainer", "grasp-search", "--objects", "builtin_cylinder", "--population", "2",
+        "--trials", "2", "--iterations", "1", "--elite", "2",
+        "--data-dir", str(builtin_data.data_dir), "--out", str(out),
+    ])
+    trainer.cli.main()
+    assert "builtin_cylinder: best " in capsys.readouterr().out
+    data = load_searched(out)
+    entry = data["objects"]["builtin_cylinder"]
+    assert data["config"] == {} and set(entry["theta"]) == set(PARAMS)
+    assert entry["search"]["population"] == 2 and len(entry["history"]) == 1
+    script = KeyframeGrasp(by_object=(("builtin_cylinder",
+                                       tuple(entry["theta"][p] for p in PARAMS)),))
+    env = _env(builtin_data, 2, "builtin_cylinder,builtin_box")
+    env.reset()
+    with pytest.raises(TrainerError) as info:
+        record_grasp(env, script)
+    env.close()
+    message = str(info.value)
+    assert message.startswith("no searched grasp for builtin_box: search one with `trainer "
+                              "grasp-search --objects builtin_box`") and "\n" not in message
+    # --refine continues from the file's grasp and keeps the earlier search's record.
+    monkeypatch.setattr(sys, "argv", [
+        "trainer", "grasp-search", "--objects", "builtin_cylinder", "--population", "2",
+        "--trials", "2", "--iterations", "1", "--elite", "2", "--refine", "--spread", "0.5",
+        "--data-dir", str(builtin_data.data_dir), "--out", str(out),
+    ])
+    trainer.cli.main()
+    refined = load_searched(out)["objects"]["builtin_cylinder"]
+    assert refined["search"]["refine"] and refined["search"]["spread"] == 0.5
+    assert refined["earlier"][0]["search"] == entry["search"]
+    # A script longer than the env's episodes is refused in one line (no silent truncation).
+    long = KeyframeGrasp(top_grasp_theta(), lift_steps=400)
+    env = _env(builtin_data, 1)
+    with pytest.raises(TrainerError, match=r"max_steps >= \d+"):
+        record_grasp(env, long)
+    env.close()
+    # A file of another configuration is refused, not mixed.
+    monkeypatch.setattr(sys, "argv", [
+        "trainer", "grasp-search", "--objects", "builtin_box", "--population", "2",
+        "--trials", "1", "--iterations", "1", "--elite", "2", "--config",
+        str(_config(tmp_path)), "--data-dir", str(builtin_data.data_dir), "--out", str(out),
+    ])
+    with pytest.raises(SystemExit):
+        trainer.cli.main()
+    err = capsys.readouterr().err.strip()
+    assert "holds grasps searched with another configuration" in err and "\n" not in err
+    out.write_text(json.dumps({"config": {}, "objects": {"x": {"theta": {}}}}))
+    with pytest.raises(TrainerError, match="not a searched-grasp file"):
+        load_searched(out)
+
+
+def _config(tmp_path: Path) -> Path:
+    path = tmp_path / "noslip.toml"
+    path.write_text("[physics]\nnoslip_iterations = 5\n")
+    return path
+
+
+def test_committed_searched_grasps_are_complete() -> None:
+    """The package's searched grasps (``searched.json``) name their configuration and have
+    every parameter and the lifts they were measured with; the family runs them."""
+    fam = FAMILIES["searched"]
+    data = load_searched()
+    assert set(fam.objects) == set(data["objects"])
+    for name, entry in data["objects"].items():
+        assert 0 <= entry["lifted"] <= entry["final_trials"], name
+        assert all(abs(entry["theta"][f"closed{i}"]) <= 1 for i in range(5)), name
+    assert fam.variants["base"].env == data["config"]
