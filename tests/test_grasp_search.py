@@ -149,3 +149,40 @@ def test_committed_searched_grasps_are_complete() -> None:
         assert 0 <= entry["lifted"] <= entry["final_trials"], name
         assert all(abs(entry["theta"][f"closed{i}"]) <= 1 for i in range(5)), name
     assert fam.variants["base"].env == data["config"]
+
+
+def test_best_families_group_objects_and_carry_the_hand() -> None:
+    """``trainer demo --family best``: the objects grouped by their best family, every batch
+    with the searched grasps' hand configuration under the variant's own overrides; an
+    object no family lifts is a one-line error."""
+    from trainer.grasps.families import BEST, best_variants
+
+    batches = best_variants(["062_dice", "013_apple", "053_mini_soccer_ball", "032_knife"])
+    assert {spec: names for spec, (_, names) in batches.items()} == {
+        "searched": ["062_dice", "053_mini_soccer_ball"], "top": ["013_apple"],
+        "pinch:press6+noslip": ["032_knife"],
+    }
+    hand = load_searched()["config"]
+    pinch = batches["pinch:press6+noslip"][0]
+    assert pinch.env["robot"] == hand["robot"] and pinch.env["physics"]["noslip_iterations"] == 5
+    assert set(BEST) >= set(FAMILIES["searched"].objects)
+    with pytest.raises(TrainerError) as info:
+        best_variants(["013_apple", "029_plate"])
+    assert str(info.value).startswith("no grasp family lifts 029_plate yet")
+
+
+SEARCHED_OBJECTS = ("053_mini_soccer_ball", "073-g_lego_duplo", "062_dice")
+
+
+@pytest.mark.slow
+def test_searched_grasps_lift_their_objects(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """The searched family keeps its measured counts (results/graspability-search-2026-11-26:
+    ball 8-9, Duplo 8-10, dice 8-10 of 10 over seeds 0-2): >= 8 of 10 each, seed 0 (YCB
+    models required)."""
+    from tests.conftest import build_ycb
+    from trainer.grasps import measure
+
+    data = build_ycb(tmp_path_factory, "searched", SEARCHED_OBJECTS)
+    rows = measure("searched", "base", FAMILIES["searched"].variants["base"], SEARCHED_OBJECTS,
+                   10, seed=0, data_dir=data.data_dir)
+    assert all(r["lifted"] >= 8 for r in rows), rows

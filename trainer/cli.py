@@ -100,7 +100,8 @@ def _config_options(func):  # noqa: ANN001, ANN202
 @click.option("--seed", default=0, show_default=True, help="Seed of the initial states.")
 @click.option("--family", "family_spec", default="top", show_default=True,
               help="Grasp family, optionally FAMILY:VARIANT (e.g. pinch:press6+noslip); the "
-              "variant's physics overrides apply.")
+              "variant's physics overrides apply. 'best': each Table I object's best family "
+              "with the candidate hand (one video per family).")
 @click.option(
     "--video", type=click.Path(path_type=Path, dir_okay=False), default=Path("demo.mp4"),
     show_default=True, help="Video of one trial per object (.mp4 or .gif); '' for none.",
@@ -119,22 +120,44 @@ def demo(
     """
     _at_least("--trials", trials, 1)
     _at_least("--seed", seed, 0)
-    from trainer.grasps import family_variants, run_scripted_grasp
+    from trainer.grasps import family_variants
+    from trainer.grasps.families import best_variants
     from trainer.objects import resolve_names
+
+    names = resolve_names(objects, load_env_config(
+        config_path, **({"data_dir": data_dir} if data_dir else {})).data_dir)
+    if family_spec == "best":
+        batches = best_variants(names)
+    else:
+        family_name, _, variant_name = family_spec.partition(":")
+        name = variant_name or "base"
+        batches = {family_spec: (family_variants(family_name, [name])[name], names)}
+    for spec, (variant, mine) in batches.items():
+        if len(batches) > 1:
+            click.echo(f"\n{spec}:")
+        clip = video
+        if len(batches) > 1 and str(video) not in ("", "."):
+            clip = video.with_name(f"{video.stem}-{spec.replace(':', '-')}{video.suffix}")
+        _demo_batch(mine, variant, trials, robot, seed, clip, config_path, data_dir)
+
+
+def _demo_batch(
+    names: list[str], variant, trials: int, robot: str, seed: int, video: Path,  # noqa: ANN001
+    config_path: Path | None, data_dir: Path | None,
+) -> None:
+    """One batch of ``trainer demo``: ``trials`` per object of ``variant``, printed, and the
+    first trial of each object (up to four) filmed into ``video``."""
+    from trainer.grasps import run_scripted_grasp
+    from trainer.grasps.runner import episode_config
     from trainer.tasks import make_env
 
-    family_name, _, variant_name = family_spec.partition(":")
-    variant = family_variants(family_name, [variant_name or "base"])[variant_name or "base"]
     overrides = {"data_dir": data_dir} if data_dir else {}
     cfg = load_env_config(config_path, task="lift", context="none", **overrides, **variant.env)
     check_device(cfg.device, f"device {cfg.device!r} in {config_path}", 'set device = "cpu"')
-    names = resolve_names(objects, cfg.data_dir)
     cfg = dataclasses.replace(
         cfg, num_envs=trials * len(names), objects=",".join(names),
         robot=dataclasses.replace(cfg.robot, kind=robot),
     )
-    from trainer.grasps.runner import episode_config
-
     env = make_env(episode_config(cfg, variant.script), seed=seed)
     targets = env.target_objects().cpu()  # lift: the env's one object, fixed at build
     recorder = None

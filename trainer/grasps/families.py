@@ -188,6 +188,43 @@ of ``search.py`` (``trainer grasp-search``) and read from ``searched.json``; its
 with the configuration they were searched with."""
 
 
+BEST = {
+    "032_knife": "pinch:press6+noslip",
+    "062_dice": "searched",
+    "072-a_toy_airplane": "searched",
+    "073-g_lego_duplo": "searched",
+    "007_tuna_fish_can": "pinch:press6+noslip",
+    "013_apple": "top",
+    "053_mini_soccer_ball": "searched",
+    "065-a_cups": "top",
+    "077_rubiks_cube": "top",
+}
+"""Each Table I object's best family (``FAMILY:VARIANT``) with the hand ``searched.json`` names
+(the candidate of issue 33: link hulls, damping 0.1, 0.75 N·m, all joints driven, no-slip):
+results/graspability-drives-2026-11-25/ and results/graspability-search-2026-11-26/ (each
+>= 8 of 10). The plate has none."""
+
+
+def best_variants(names: Sequence[str]) -> dict[str, tuple[Variant, list[str]]]:
+    """``FAMILY:VARIANT`` -> (its variant with the searched grasps' hand configuration under
+    its own overrides, the ``names`` it is best for); an object without a best family is a
+    one-line error."""
+    missing = [n for n in names if n not in BEST]
+    if missing:
+        raise TrainerError(f"no grasp family lifts {', '.join(missing)} yet: choose of "
+                           f"{', '.join(BEST)}, or name a family")
+    hand = load_searched()["config"]
+    out: dict[str, tuple[Variant, list[str]]] = {}
+    for name in names:
+        spec = BEST[name]
+        if spec not in out:
+            family_name, _, variant_name = spec.partition(":")
+            variant = variants(family_name, [variant_name or "base"])[variant_name or "base"]
+            out[spec] = (Variant(variant.script, _merge(hand, variant.env)), [])
+        out[spec][1].append(name)
+    return out
+
+
 def family(name: str) -> Family:
     """The registered family ``name``; an unknown name is a one-line error listing them."""
     if name not in FAMILIES:
