@@ -96,6 +96,22 @@ def parse_families(spec: str) -> list[tuple[str, str]]:
     return chosen
 
 
+def check_not_fixed(families: list[tuple[str, str]], configs: list[dict[str, Any]]) -> None:
+    """A ``--set`` / ``--grid`` key that a chosen variant fixes itself (its environment
+    overrides win) is a one-line error: the configurations would silently not differ."""
+    from trainer.grasps import family_variants
+
+    keys = {k for c in configs for k in c}
+    for name, variant_name in families:
+        fixed = {f"{section}.{field}" if isinstance(values, dict) else section
+                 for section, values in family_variants(name, [variant_name])[variant_name]
+                 .env.items() for field in (values if isinstance(values, dict) else [None])}
+        clash = sorted(keys & fixed)
+        if clash:
+            raise UserError(f"{clash[0]}: the family {name}:{variant_name} fixes it (its "
+                            f"variant's own setting wins): measure it with another family")
+
+
 HOLD_COLUMNS = ("held_end", "slip_mm_s", "grip_n", "pull_ratio")
 """``--hold``'s columns (``trainer.grasps.measure``)."""
 
@@ -150,6 +166,7 @@ def run(args: argparse.Namespace) -> None:
                         "use --backend cpu")
     families = parse_families(args.family)
     configs = configurations(args.sets, args.grids)
+    check_not_fixed(families, configs)
     env: dict[str, Any] = {k: v for k, v in {
         "data_dir": args.data_dir, "backend": args.backend, "device": args.device}.items()
         if v is not None}

@@ -50,6 +50,9 @@ def test_values_parse_as_toml_and_bare_words_as_strings() -> None:
         (["--hold", "--backend", "warp"], "error: --hold probes states copied out of the cpu"),
         (["--set", "robot.hand_geometry=spheres"],
          'error: [robot] hand_geometry = "spheres": must be one of "capsules", "hulls"'),
+        # A key the chosen variant fixes itself would leave the configurations identical.
+        (["--family", "pinch:press6+noslip", "--grid", "physics.noslip_iterations=0,5"],
+         "error: physics.noslip_iterations: the family pinch:press6+noslip fixes it"),
     ],
 )
 def test_unknown_names_are_one_line_errors(
