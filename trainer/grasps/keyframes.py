@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import torch
 
 from geomgrasp.rotations import axis_angle_to_matrix
+from trainer.errors import TrainerError
 from trainer.grasps.geometry import steer
 from trainer.grasps.top import TopGrasp, grasp_frame
 from trainer.robots import sih
@@ -67,7 +68,7 @@ def top_grasp_theta(top: TopGrasp | None = None) -> torch.Tensor:
     return theta
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # eq=False: tensor fields have no truth value to compare
 class KeyframeGrasp:
     """A keyframe grasp per env: ``theta`` (E, D) or (D,) (the same for every env), or, when
     ``by_object`` is given, the row of each env's target object (object name -> (D,) values)."""
@@ -83,6 +84,7 @@ class KeyframeGrasp:
     hover: float = 0.10
     lift: float = 0.3
     lift_rate: float = 0.5
+
     @property
     def total_steps(self) -> int:
         return (self.approach_steps + self.descend_steps + self.close_steps
@@ -106,8 +108,6 @@ class KeyframeGrasp:
         names = env.objects.names
         missing = sorted({names[k] for k in env.target_objects().tolist()} - set(table))
         if missing:
-            from trainer.errors import TrainerError
-
             raise TrainerError(
                 f"no searched grasp for {', '.join(missing)}: search one with "
                 f"`trainer grasp-search --objects {','.join(missing)}`, or choose of "

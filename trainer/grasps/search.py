@@ -14,6 +14,7 @@ are then re-scored on fresh trials; the best of those is the result.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
@@ -82,8 +83,6 @@ def cem(
     mean = mean.clone().float()
     scored: list[tuple[float, torch.Tensor]] = []
     history = []
-    import time
-
     for it in range(iterations):
         start = time.perf_counter()
         theta = mean + std * torch.randn(population, DIM, generator=gen)
