@@ -124,14 +124,13 @@ def demo(
     from trainer.grasps.families import best_variants
     from trainer.objects import resolve_names
 
+    variant = None
+    if family_spec != "best":  # an unknown family or variant is reported before the objects
+        family_name, _, variant_name = family_spec.partition(":")
+        variant = family_variants(family_name, [variant_name or "base"])[variant_name or "base"]
     names = resolve_names(objects, load_env_config(
         config_path, **({"data_dir": data_dir} if data_dir else {})).data_dir)
-    if family_spec == "best":
-        batches = best_variants(names)
-    else:
-        family_name, _, variant_name = family_spec.partition(":")
-        name = variant_name or "base"
-        batches = {family_spec: (family_variants(family_name, [name])[name], names)}
+    batches = {family_spec: (variant, names)} if variant is not None else best_variants(names)
     for spec, (variant, mine) in batches.items():
         if len(batches) > 1:
             click.echo(f"\n{spec}:")
