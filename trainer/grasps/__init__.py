@@ -5,6 +5,8 @@ lift, each trial's outcome told from its recorded trajectory.
   behind ``trainer demo``.
 * ``pinch`` (``Pinch``): thumb tip against index tip at table height, for small and flat
   objects.
+* ``searched`` (``keyframes.KeyframeGrasp``): per object, a keyframe grasp found by the
+  cross-entropy search of ``search.py`` (``trainer grasp-search``), stored in ``searched.json``.
 
 ``FAMILIES`` names them with their measured variants (``families.py``); ``run_scripted_grasp``
 / ``record_grasp`` run any of them (``runner.py``); ``outcomes.classify`` tells lifted / dropped
