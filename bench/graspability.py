@@ -103,9 +103,12 @@ def check_not_fixed(families: list[tuple[str, str]], configs: list[dict[str, Any
 
     keys = {k for c in configs for k in c}
     for name, variant_name in families:
-        fixed = {f"{section}.{field}" if isinstance(values, dict) else section
-                 for section, values in family_variants(name, [variant_name])[variant_name]
-                 .env.items() for field in (values if isinstance(values, dict) else [None])}
+        fixed = set()
+        for section, values in family_variants(name, [variant_name])[variant_name].env.items():
+            if isinstance(values, dict):  # a section's fields
+                fixed |= {f"{section}.{field}" for field in values}
+            else:  # a top-level field
+                fixed.add(section)
         clash = sorted(keys & fixed)
         if clash:
             raise UserError(f"{clash[0]}: the family {name}:{variant_name} fixes it (its "

@@ -13,6 +13,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import dataclasses  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import TYPE_CHECKING  # noqa: E402
 
 import click  # noqa: E402
 
@@ -29,8 +30,12 @@ from trainer.config import (  # noqa: E402
     load_env_config,
     load_train_config,
     override,
+    read_config_toml,
 )
 from trainer.errors import TrainerError  # noqa: E402
+
+if TYPE_CHECKING:
+    from trainer.grasps import Variant
 
 DEMO_OBJECTS = "077_rubiks_cube,013_apple,005_tomato_soup_can"
 RUN_OPTIONS = {
@@ -141,7 +146,7 @@ def demo(
 
 
 def _demo_batch(
-    names: list[str], variant, trials: int, robot: str, seed: int, video: Path,  # noqa: ANN001
+    names: list[str], variant: Variant, trials: int, robot: str, seed: int, video: Path,
     config_path: Path | None, data_dir: Path | None,
 ) -> None:
     """One batch of ``trainer demo``: ``trials`` per object of ``variant``, printed, and the
@@ -298,7 +303,6 @@ def grasp_search(
         raise TrainerError(f"--spread {spread}: must be > 0")
     import datetime
     import json
-    import tomllib
 
     import torch
 
@@ -310,13 +314,9 @@ def grasp_search(
     from trainer.tasks import make_env
 
     out = out or SEARCHED_PATH
-    config: dict = {}
-    if config_path is not None:
-        try:
-            config = {k: v for k, v in tomllib.loads(config_path.read_text()).items()
-                      if k not in ("ppo", "run", "objects", "num_envs", "data_dir")}
-        except (OSError, tomllib.TOMLDecodeError) as exc:
-            raise TrainerError(f"{config_path}: cannot read it ({exc})") from None
+    # The environment part of the config file, as written (read by the one TOML reader).
+    config = {k: v for k, v in read_config_toml(config_path).items()
+              if k not in ("ppo", "run", "objects", "num_envs", "data_dir")}
     data = load_searched(out)
     if data["objects"] and data["config"] != config:
         raise TrainerError(

@@ -452,7 +452,9 @@ class TrainConfig:
     run: RunConfig = field(default_factory=RunConfig)
 
 
-def _read_toml(path: Path | None) -> dict[str, Any]:
+def read_config_toml(path: Path | None) -> dict[str, Any]:
+    """A config file's values as written ({} without one); an unreadable one is a one-line
+    error."""
     return {} if path is None else read_toml(path, TrainerError)
 
 
@@ -481,7 +483,7 @@ def _toml_env(values: dict[str, Any], path: Path | None) -> EnvConfig:
 def load_env_config(path: Path | None = None, **overrides: Any) -> EnvConfig:
     """Defaults, then the TOML file at ``path``, then keyword ``overrides`` (top-level fields,
     whole sections or dicts of section fields), e.g. ``load_env_config(num_envs=16)``."""
-    cfg = _toml_env(_read_toml(path), path)
+    cfg = _toml_env(read_config_toml(path), path)
     return _build(EnvConfig, overrides, None, base=cfg) if overrides else cfg
 
 
@@ -495,7 +497,7 @@ def load_train_config(
     """Defaults, then the TOML file (environment knobs as in ``load_env_config`` plus ``[ppo]``
     and ``[run]`` sections), then the override dicts (command-line options; ``names`` maps their
     keys, dotted below the section, to the options, which errors then name)."""
-    values = _read_toml(path)
+    values = read_config_toml(path)
     cfg = TrainConfig(
         _toml_env(values, path),
         _build(PPOConfig, values.get("ppo", {}), str(path), "ppo"),

@@ -213,7 +213,7 @@ def best_variants(names: Sequence[str]) -> dict[str, tuple[Variant, list[str]]]:
     if missing:
         raise TrainerError(f"no grasp family lifts {', '.join(missing)} yet: choose of "
                            f"{', '.join(BEST)}, or name a family")
-    hand = load_searched()["config"]
+    hand = FAMILIES["searched"].variants["base"].env  # searched.json's configuration
     out: dict[str, tuple[Variant, list[str]]] = {}
     for name in names:
         spec = BEST[name]

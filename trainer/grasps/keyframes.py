@@ -106,17 +106,15 @@ class KeyframeGrasp:
             return self.theta.to(env.device).expand(env.num_envs, DIM)
         table = dict(self.by_object)
         names = env.objects.names
-        missing = sorted({names[k] for k in env.target_objects().tolist()} - set(table))
+        missing = sorted({names[k] for k in env.target_objects().unique().tolist()} - set(table))
         if missing:
             raise TrainerError(
                 f"no searched grasp for {', '.join(missing)}: search one with "
                 f"`trainer grasp-search --objects {','.join(missing)}`, or choose of "
                 f"{', '.join(sorted(table)) or 'none'}"
             )
-        rows = torch.tensor([table[n] for n in names if n in table] or [[0.0] * DIM])
-        lookup = {n: i for i, n in enumerate(n for n in names if n in table)}
-        pick = torch.tensor([lookup[names[k]] for k in env.target_objects().tolist()])
-        return rows[pick].to(env.device)
+        per_object = torch.tensor([table.get(n, (float("nan"),) * DIM) for n in names])
+        return per_object.to(env.device)[env.target_objects()]
 
     def plan(self, env: GraspTask) -> dict:
         """Per env, from the target's pose after the reset: the keypoint goal at the grasp

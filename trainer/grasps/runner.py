@@ -4,8 +4,8 @@ asked) record the trajectory that ``outcomes.classify`` reads."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any, Protocol
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Protocol
 
 import torch
 from tensordict import TensorDict
@@ -13,6 +13,9 @@ from tensordict import TensorDict
 from trainer.errors import TrainerError
 from trainer.grasps.top import TopGrasp
 from trainer.tasks import GraspTask
+
+if TYPE_CHECKING:
+    from trainer.config import EnvConfig
 
 
 class GraspScript(Protocol):
@@ -133,11 +136,8 @@ def run_scripted_grasp(
     return lifted
 
 
-def episode_config(cfg: Any, script: GraspScript) -> Any:
-    """``cfg`` (an ``EnvConfig``) with episodes long enough for ``script`` (a scripted trial
-    is one episode)."""
-    from dataclasses import replace
-
+def episode_config(cfg: EnvConfig, script: GraspScript) -> EnvConfig:
+    """``cfg`` with episodes long enough for ``script`` (a scripted trial is one episode)."""
     return replace(cfg, max_steps=max(cfg.max_steps, script.total_steps))
 
 

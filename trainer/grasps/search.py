@@ -109,9 +109,8 @@ def cem(
             on_iteration(row)
     # Re-score the best candidates (and the final mean) on fresh trials, side by side.
     scored.sort(key=lambda s: -s[0])
+    # (The mean of clamped elites needs no clamp of its own.)
     finalists = [mean] + [t for _, t in scored[:final_candidates]]
-    finalists[0] = finalists[0].clone()
-    finalists[0][HAND] = finalists[0][HAND].clamp(-1.0, 1.0)
     each = env.num_envs // len(finalists)
     per_env = torch.cat([t.expand(each, DIM) for t in finalists]
                         + [finalists[0].expand(env.num_envs - each * len(finalists), DIM)])
