@@ -29,7 +29,8 @@ def test_configurations_put_the_baseline_first_and_span_the_grid() -> None:
     assert graspability.overrides(configs[4]) == {
         "robot": {"hand_kp": 30, "hand_geometry": "hulls", "hand_forcerange": 0.75}}
     default = asdict(load_env_config())
-    assert graspability.is_baseline({"robot.hand_geometry": "capsules"}, default)
+    assert graspability.is_baseline({"robot.hand_geometry": "hulls"}, default)
+    assert not graspability.is_baseline({"robot.hand_geometry": "capsules"}, default)
     assert not graspability.is_baseline(configs[1], default)  # hand_kp 30 is not today's
 
 

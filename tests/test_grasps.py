@@ -247,3 +247,50 @@ def test_demo_runs_a_named_family_variant(builtin_data: Config, monkeypatch: pyt
     assert exit_info.value.code == 1
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: unknown grasp family 'palm'") and "\n" not in err
+
+
+def test_slide_grasp_comes_palm_up_from_the_robots_side(builtin_data: Config) -> None:
+    """The slide grasp's plan: the palm faces up (tilted toward the target by ``pitch``), the
+    fingers point from the robot's base toward the target (horizontally) and down by ``pitch``,
+    and the palm keypoint starts ``start`` short of the target's centre at ``height``."""
+    import math
+
+    from trainer.config import load_env_config
+    from trainer.grasps.geometry import target_box
+    from trainer.grasps.slide import SlideGrasp
+    from trainer.tasks import make_env
+
+    cfg = load_env_config(num_envs=3, objects="builtin_box", representation="com",
+                          data_dir=builtin_data.data_dir)
+    env = make_env(cfg, seed=2)
+    env.reset()
+    script = SlideGrasp()
+    plan = script.plan(env)
+    center = target_box(env)[0]
+    env.close()
+    rot = plan["rot"]
+    torch.testing.assert_close(rot.transpose(1, 2) @ rot, torch.eye(3).expand(3, 3, 3),
+                               atol=1e-5, rtol=0)
+    assert torch.allclose(torch.linalg.det(rot), torch.ones(3), atol=1e-5)
+    palmar, fingers = rot[..., 1], rot[..., 2]
+    assert torch.allclose(palmar[:, 2], torch.full((3,), math.cos(script.pitch)), atol=1e-5)
+    assert torch.allclose(fingers[:, 2], torch.full((3,), -math.sin(script.pitch)), atol=1e-5)
+    away = center[:, :2] - torch.tensor(cfg.robot.base_pos[:2])
+    away = away / away.norm(dim=-1, keepdim=True)
+    torch.testing.assert_close(fingers[:, :2] / fingers[:, :2].norm(dim=-1, keepdim=True), away)
+    torch.testing.assert_close(plan["inward"][:, :2], away)
+    torch.testing.assert_close((center - plan["start"])[:, :2].norm(dim=-1),
+                               torch.full((3,), script.start))
+    assert torch.allclose(plan["start"][:, 2], torch.full((3,), script.height))
+
+
+@pytest.mark.slow
+def test_slide_grasp_tips_the_plate(ycb_data: Config) -> None:
+    """The slide family's measured behaviour on the plate (results/graspability-plate-
+    2026-11-26: no lift; the curl tips it, its centre rising 2-5 cm): over 10 trials, no lift,
+    and most trials raise the plate >= 2 cm (``dropped``) before it falls back."""
+    rows = measure("slide", "base", family("slide").variants["base"], ["029_plate"], 10,
+                   data_dir=ycb_data.data_dir)
+    (row,) = rows
+    assert row["lifted"] == 0
+    assert row["dropped"] >= 5

@@ -18,9 +18,9 @@ from trainer.robots.ur5e import JOINTS as UR5E_JOINTS
 from trainer.robots.ur5e import UR5eRobot, dh_forward
 
 
-def _model(kind: str) -> mujoco.MjModel:
+def _model(kind: str, **robot: object) -> mujoco.MjModel:
     cfg = load_env_config()
-    cfg = dataclasses.replace(cfg, robot=dataclasses.replace(cfg.robot, kind=kind))
+    cfg = dataclasses.replace(cfg, robot=dataclasses.replace(cfg.robot, kind=kind, **robot))
     return build_scene(cfg, Scene(num_slots=0), []).compile()
 
 
@@ -34,11 +34,14 @@ def floating() -> mujoco.MjModel:
     return _model("floating")
 
 
-def test_hand_has_11_joints_5_actuators_and_fingertips(floating: mujoco.MjModel) -> None:
+def test_hand_has_11_joints_11_actuators_and_fingertips(floating: mujoco.MjModel) -> None:
+    """The default hand drives every joint: the 5 servos' actuators first, then one per
+    follower joint (``all-joints``)."""
     hand_joints = [floating.joint(n) for n in sih.JOINTS]
     assert len(hand_joints) == 11
-    assert floating.nu == 5
-    assert [floating.actuator(i).name for i in range(5)] == [a[0] for a in sih.ACTUATORS]
+    assert floating.nu == 11
+    assert [floating.actuator(i).name for i in range(11)] == (
+        [a[0] for a in sih.ACTUATORS] + [a[0] for a in sih.FOLLOWER_ACTUATORS])
     for name in sih.FINGERTIPS:
         assert floating.site(name).id >= 0
     # Index fingertip at q = 0, palm frame: (-0.0435, 0.0175, 0.230) per sih_hand.md.
@@ -51,13 +54,16 @@ def test_hand_has_11_joints_5_actuators_and_fingertips(floating: mujoco.MjModel)
     np.testing.assert_allclose(thumb, [-0.1201, 0.024, 0.096], atol=1e-6)
 
 
-def test_couplings_hold_while_closing(floating: mujoco.MjModel) -> None:
-    data = mujoco.MjData(floating)
+def test_couplings_hold_while_closing() -> None:
+    """``hand_drive = "equalities"`` (the capsule hand's drive): 5 actuators, and the 6
+    follower joints kept on their leaders by the equalities."""
+    model = _model("floating", hand_drive="equalities")
+    data = mujoco.MjData(model)
     for name, _, _, closed in sih.ACTUATORS:
-        data.ctrl[floating.actuator(name).id] = 0.6 * closed
+        data.ctrl[model.actuator(name).id] = 0.6 * closed
     for _ in range(600):
-        mujoco.mj_step(floating, data)
-    q = {n: data.qpos[floating.joint(n).qposadr[0]] for n in sih.JOINTS}
+        mujoco.mj_step(model, data)
+    q = {n: data.qpos[model.joint(n).qposadr[0]] for n in sih.JOINTS}
     assert q["if_proximal"] < -0.5  # the fingers did close
     for follower, leader in sih.COUPLINGS:
         assert abs(q[follower] - q[leader]) < 0.02, (follower, leader, q)
@@ -260,7 +266,7 @@ def test_hull_hand_compiles_for_both_robots_with_the_capsules_bits_and_material(
     """Every finger and thumb link collides as one mesh geom from ``sih_hulls.json``; the palm
     stays the box; the meshes carry the capsules' collision bits and contact material."""
     for kind in ROBOTS:
-        capsules, meshes = _model(kind), _hull_model(kind)
+        capsules, meshes = _model(kind, hand_geometry="capsules"), _hull_model(kind)
         for body in sih.HULL_OF:
             (cap,) = np.flatnonzero(capsules.geom_bodyid == capsules.body(body).id)
             (geom,) = np.flatnonzero(meshes.geom_bodyid == meshes.body(body).id)
@@ -340,12 +346,14 @@ def test_hull_hand_at_home_touches_nothing_of_itself(kind: str) -> None:
     np.testing.assert_allclose(q, home.qpos[robot.hand_qpos].numpy(), atol=0.02)
 
 
-def test_hand_joint_damping_is_a_knob_with_todays_default(floating: mujoco.MjModel) -> None:
-    """``[robot] hand_joint_damping`` sets the 11 hand joints' damping; the default is 1.0."""
+def test_hand_joint_damping_is_a_knob_with_the_urdfs_default(floating: mujoco.MjModel) -> None:
+    """``[robot] hand_joint_damping`` sets the 11 hand joints' damping; the default is the
+    authors' URDF's 0.1."""
     dofs = [floating.joint(n).dofadr[0] for n in sih.JOINTS]
     np.testing.assert_array_equal(floating.dof_damping[dofs], sih.JOINT_DAMPING)
-    model = _hull_model("floating", hand_joint_damping=0.1)
-    np.testing.assert_allclose(model.dof_damping[dofs], 0.1)
+    assert sih.JOINT_DAMPING == 0.1
+    model = _hull_model("floating", hand_joint_damping=1.0)
+    np.testing.assert_allclose(model.dof_damping[dofs], 1.0)
 
 
 def _drive_model(drive: str, **robot: object) -> tuple[mujoco.MjModel, object]:
@@ -384,7 +392,7 @@ def test_all_joints_drive_has_11_actuators_no_equalities_and_coupled_targets() -
     ctrl = relative.commands(action, palm, palm, home.rot.expand(E, 3, 3),
                              home.ctrl.expand(E, -1), home.qpos.expand(E, -1))[2]
     torch.testing.assert_close(ctrl[:, robot.hand.followers], ctrl[:, leaders])
-    # The default keeps 5 actuators and the 6 equalities.
+    # ``equalities`` keeps 5 actuators and the 6 equalities.
     model, robot = _drive_model("equalities")
     assert model.nu == 5 and (model.eq_type == joint_eq).sum() == 6
     robot.index(model, torch.device("cpu"))

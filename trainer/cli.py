@@ -194,7 +194,8 @@ def _demo_batch(
 @cli.command()
 @click.option("--family", "family_name", default="top", show_default=True,
               help="Grasp family: top (palm down, close, lift), pinch (thumb tip against "
-              "index tip at table height) or searched (trainer grasp-search's grasps).")
+              "index tip at table height), slide (palm up under a flat object's rim: tips the "
+              "plate, lifts nothing yet) or searched (trainer grasp-search's grasps).")
 @click.option("--variants", default="base", show_default=True,
               help="The family's named variants (comma-separated; 'all': every one).")
 @click.option("--grid", is_flag=True, help="Instead of --variants: the family's geometry grid.")

@@ -67,11 +67,13 @@ class PhysicsConfig(_Checked):
     impratio: float = bounded(1.0, gt=0)
     """Frictional-to-normal constraint impedance ratio; above 1 makes friction stiffer (less
     creep of a held object), as MuJoCo recommends with elliptic cones."""
-    noslip_iterations: int = bounded(0, ge=0)
+    noslip_iterations: int = bounded(5, ge=0)
     """Passes of MuJoCo's no-slip solver after the main one (0: off). It removes the creep of
     the soft frictional contacts, which lets a pinched dice or knife slide out of the fingertips
-    (results/scripted-table1: a scripted pinch lifts the dice 0 -> 8 of 10 with 5). Costs ~10 %
-    of the lift task's env steps/s and ~25 % of the bin's on the CPU (docs/benchmarks.md)."""
+    (results/scripted-table1: a scripted pinch lifts the dice 0 -> 8 of 10 with 5) and a held
+    cube slide 0.5-5.7 mm/s under its own weight (0.002-0.17 mm/s with 5;
+    results/graspability-drives-2026-11-25/). Costs ~10 % of the lift task's env steps/s and
+    ~25 % of the bin's on the CPU (docs/benchmarks.md)."""
     sleep: bool = False
     """CPU backend: let objects at rest sleep (MuJoCo's sleeping islands: a resting object leaves
     the collision and constraint pipeline until something touches it). The bin's physics runs
@@ -122,19 +124,21 @@ class RobotConfig(_Checked):
     arm_damping: float = bounded(120.0, ge=0)
     arm_armature: float = bounded(0.2, ge=0)
     hand_kp: float = bounded(20.0, ge=0)
-    hand_forcerange: float = bounded(5.0, gt=0)
-    """Hand servo torque limit (N·m); the real SIH servos give about 0.75 N·m."""
-    hand_geometry: str = bounded("capsules", choices=HAND_GEOMETRIES)
+    hand_forcerange: float = bounded(0.75, gt=0)
+    """Hand servo torque limit (N·m): the real SIH servos' 0.75 N·m. With the URDF's joint
+    damping and every joint driven it lifts the cube, the apple and the cups 10/10 with the top
+    grasp (results/graspability-drives-2026-11-25/); the capsule hand used 5."""
+    hand_geometry: str = bounded("hulls", choices=HAND_GEOMETRIES)
     """Collision shapes of the 11 finger and thumb links: ``capsules`` (our estimate of the link
     sizes) or ``hulls`` (the convex hulls of the published link meshes,
     ``trainer/robots/sih_hulls.json``). The palm is a box either way."""
-    hand_drive: str = bounded("equalities", choices=HAND_DRIVES)
+    hand_drive: str = bounded("all-joints", choices=HAND_DRIVES)
     """How the 5 servo commands reach the 11 joints: ``equalities`` (5 position actuators on the
     leading joints, the 6 others following through soft 1:1 equality constraints, the dexterity
     MJCF's scheme) or ``all-joints`` (11 position actuators, each follower given its leader's
     target, with no equality: the authors' Isaac Gym scheme, every joint a drive with the URDF's
     effort limit). Each actuator has ``hand_kp`` and ``hand_forcerange``."""
-    hand_joint_damping: float = bounded(1.0, ge=0)
+    hand_joint_damping: float = bounded(0.1, ge=0)
     """Damping of the 11 hand joints (N·m·s/rad). 1.0 is the dexterity MJCF's class default; the
     authors' URDF has 0.1. At a 0.75 N·m servo limit, 1.0 caps a finger's closing speed at
     0.75 rad/s (issue 33)."""

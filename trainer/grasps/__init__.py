@@ -5,6 +5,8 @@ lift, each trial's outcome told from its recorded trajectory.
   behind ``trainer demo``.
 * ``pinch`` (``Pinch``): thumb tip against index tip at table height, for small and flat
   objects.
+* ``slide`` (``SlideGrasp``): palm up, fingers slid to a flat object's rim and curled under
+  it; tips the plate, lifts nothing yet.
 * ``searched`` (``keyframes.KeyframeGrasp``): per object, a keyframe grasp found by the
   cross-entropy search of ``search.py`` (``trainer grasp-search``), stored in ``searched.json``.
 
@@ -26,11 +28,12 @@ from trainer.grasps.runner import (
     record_grasp,
     run_scripted_grasp,
 )
+from trainer.grasps.slide import SlideGrasp
 from trainer.grasps.top import TopGrasp, grasp_frame
 
 __all__ = [
     "FAMILIES", "OUTCOMES", "TABLE1_OBJECTS", "Family", "GraspScript", "GraspTrajectory",
-    "Pinch", "TopGrasp", "TrajectoryRecorder", "Variant", "classify", "family",
+    "Pinch", "SlideGrasp", "TopGrasp", "TrajectoryRecorder", "Variant", "classify", "family",
     "family_variants", "grasp_frame", "keypoint_distances", "measure", "outcome_rows",
     "record_grasp", "run_scripted_grasp",
 ]

@@ -20,6 +20,7 @@ from trainer.errors import TrainerError
 from trainer.grasps.keyframes import PARAMS, KeyframeGrasp
 from trainer.grasps.pinch import Pinch
 from trainer.grasps.runner import GraspScript, episode_config, record_grasp
+from trainer.grasps.slide import SlideGrasp
 from trainer.grasps.top import TopGrasp
 
 TABLE1_OBJECTS = (
@@ -120,7 +121,9 @@ def _searched_family() -> Family:
 FAMILIES: dict[str, Family] = {
     "top": Family(
         TopGrasp,
-        {  # one change from the default each (results/scripted-table1, "one knob at a time")
+        {  # one change from the capsule hand each (results/scripted-table1, "one knob at a
+            # time"); with the default hand of 2026-11-26 (0.75 N·m, no-slip on) force0.75 and
+            # noslip are the base variant.
             "base": Variant(_TOP),
             "friction2": Variant(_TOP, FRICTION2),
             "force0.75": Variant(_TOP, {"robot": {"hand_forcerange": 0.75}}),
@@ -181,6 +184,16 @@ FAMILIES: dict[str, Family] = {
             GridAxis("closed", "s", ((0.6, -1.0), (0.8, -1.2), (1.0, -1.4))),
         ),
     ),
+    "slide": Family(
+        SlideGrasp,
+        {  # results/graspability-plate-2026-11-26/: tips the plate 16-21 degrees, lifts 0
+            "base": Variant(SlideGrasp()),
+            "flatten": Variant(replace(SlideGrasp(), push=0.08, push_steps=40,
+                                       fingers_pushed=-1.0)),
+            "wrap": Variant(replace(SlideGrasp(), fingers_closed=0.5)),
+        },
+        ("029_plate",),
+    ),
 }
 FAMILIES["searched"] = _searched_family()
 """The ``searched`` family: one keyframe grasp per object, found by the cross-entropy search
@@ -200,7 +213,8 @@ BEST = {
     "077_rubiks_cube": "top",
 }
 """Each Table I object's best family (``FAMILY:VARIANT``) with the hand ``searched.json`` names
-(the candidate of issue 33: link hulls, damping 0.1, 0.75 N·m, all joints driven, no-slip):
+(issue 33's candidate, the default hand since 2026-11-26: link hulls, damping 0.1, 0.75 N·m,
+all joints driven, no-slip):
 results/graspability-drives-2026-11-25/ and results/graspability-search-2026-11-26/ (each
 >= 8 of 10). The plate has none."""
 

@@ -2,18 +2,20 @@
 (``sih_hand.md``), its MJCF built in code, and its drives (how the hand's share of an action
 becomes actuator targets).
 
-Collision geometry (``[robot] hand_geometry``): ``capsules`` of the real link sizes (the
-default), or ``hulls``: each finger and thumb link the convex hull of its published visual mesh
-(``sih_hulls.json`` beside this module; its ``source`` and ``about`` say where from and how).
+Collision geometry (``[robot] hand_geometry``): ``hulls`` (the default): each finger and thumb
+link the convex hull of its published visual mesh (``sih_hulls.json`` beside this module; its
+``source`` and ``about`` say where from and how), or ``capsules`` of the real link sizes (the
+project's first hand, kept as a measured comparison).
 The palm is a box either way (no palm mesh was readable). Every collision geom is tagged with the
 ``hand`` contact material (``geomgrasp.materials``). Frames: the palm body's frame is the SIH
 palm frame, fingers along +z, palmar side +y. Fingers sit at their physical x (see the x-mirror
 note below).
 
-Drives (``[robot] hand_drive``): 5 position actuators (``ACTUATORS``) on the leading joints, the
-other joints following by 1:1 equality couplings (``COUPLINGS``) (``equalities``, the default);
-or ``all-joints``: those 5 plus one position actuator per follower joint (``FOLLOWER_ACTUATORS``),
-each given its leader's target, no equalities. Action value -1 commands a DoF open, +1 closed.
+Drives (``[robot] hand_drive``): ``all-joints`` (the default, the authors' Isaac Gym scheme):
+5 position actuators (``ACTUATORS``) on the leading joints plus one per follower joint
+(``FOLLOWER_ACTUATORS``), each given its leader's target; or ``equalities``: the 5 actuators
+only, the other joints following by 1:1 equality couplings (``COUPLINGS``). Action value -1
+commands a DoF open, +1 closed.
 """
 
 from __future__ import annotations
@@ -53,8 +55,9 @@ THUMB_FLEX_RANGE = (0.0, 1.571)
 
 PALM_KEYPOINT = (0.0, 0.018, 0.09)
 """The ``palm`` site (palm frame, m): the point a robot's hand-pose command moves."""
-JOINT_DAMPING = 1.0
-"""The dexterity MJCF's class default (N·m·s/rad); ``[robot] hand_joint_damping`` sets it."""
+JOINT_DAMPING = 0.1
+"""The authors' URDF's joint damping (N·m·s/rad; the dexterity MJCF's class default is 1.0);
+``[robot] hand_joint_damping`` sets it."""
 JOINT_ARMATURE = 0.01
 
 JOINTS = (
