@@ -23,8 +23,10 @@ dropped,no_grip,pushed``, then ``variant``, ``config`` (the configuration's labe
 or its ``key=value`` overrides) and one column per ``--set`` / ``--grid`` key (that row's value).
 ``--hold`` (CPU backend) probes every trial still lifted at the script's end
 (``trainer.grasps.hold``: slip speed relative to the palm, grip force, the pull resisted over
-what friction times the grip allows) and adds ``held_end,slip_mm_s,grip_n,pull_ratio``
-(medians) to the table and the CSV.
+what friction times the grip allows, and the grip and that ratio again with the contacts'
+forces when the pull ended, and the least and most any contact then used of its friction
+cone) and adds ``held_end`` and ``trainer.grasps.families.HOLD_KEYS`` (medians) to the table
+and the CSV.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from geomgrasp.errors import UserError
 from geomgrasp.files import atomic_path
 from trainer.config import dotted_overrides as overrides
 from trainer.config import parse_assignment, parse_sets, parse_value
+from trainer.grasps.families import HOLD_KEYS
 
 COLUMNS = ("object", "family", "trials", "lifted", "dropped", "no_grip", "pushed")
 """The CSV's leading columns, as the graspability benchmark names them (issue 33)."""
@@ -115,7 +118,7 @@ def check_not_fixed(families: list[tuple[str, str]], configs: list[dict[str, Any
                             f"variant's own setting wins): measure it with another family")
 
 
-HOLD_COLUMNS = ("held_end", "slip_mm_s", "grip_n", "pull_ratio")
+HOLD_COLUMNS = ("held_end", *HOLD_KEYS)
 """``--hold``'s columns (``trainer.grasps.measure``)."""
 
 

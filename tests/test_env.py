@@ -341,3 +341,33 @@ def test_observed_hand_targets_follow_relative_actions(builtin_data: Config) -> 
         torch.testing.assert_close(td["next", "proprio"][:, 20:], expected.expand(2, 5))
     finally:
         env.close()
+
+
+def test_a_hand_that_starts_in_the_object_is_reported(builtin_data: Config) -> None:
+    """Building a task checks every settled initial state with MuJoCo's collision detection:
+    a home pose low enough to touch the object is one warning naming the object, in how many
+    of its states, and the fix; a home pose above it is silent."""
+    import warnings
+
+    from trainer.assets.collision import BIT_HAND
+    from trainer.init_states import hand_touches
+
+    def build(home: float) -> tuple[list[str], int]:
+        cfg = load_env_config(num_envs=2, objects="builtin_cylinder", representation="com",
+                              data_dir=builtin_data.data_dir, robot={"home_hand_height": home})
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            env = make_env(cfg, seed=0)
+        messages = [str(w.message) for w in caught if "home pose" in str(w.message)]
+        states = env.banks[0].cpu().numpy()  # (B, 1, 7): the one layout's settled states
+        touched = hand_touches(env.backend.models[0], env.home_qpos.cpu().numpy(), states,
+                               env.slot_qpos.cpu().numpy(), BIT_HAND)
+        assert touched.shape == (states.shape[0], 1)
+        env.close()
+        return messages, int(touched.sum())
+
+    (low,), touched = build(0.05)
+    assert touched > 32  # the palm 5 cm above the table: in most of the cylinder's states
+    assert f"builtin_cylinder ({touched} of 64)" in low and "raise [robot] home_hand_height" in low
+    assert "\n" not in low
+    assert build(0.28) == ([], 0)

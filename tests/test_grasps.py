@@ -207,13 +207,16 @@ def test_hold_probe_measures_a_held_grasp_and_a_free_fall(builtin_data: Config) 
     assert row["held_end"] >= 1
     assert 0 <= row["slip_mm_s"] < 20 and row["grip_n"] > 1
     assert 0.05 < row["pull_ratio"] < 3
+    assert row["slip_grip_n"] > 0 and 0.05 < row["slip_pull_ratio"] < 3
+    assert 0 < row["slip_cone_min"] <= row["slip_cone_max"] <= 1.01
     model = mujoco.MjModel.from_xml_string(
         '<mujoco><worldbody><body name="palm"/><body name="ball" pos="0 0 1"><freejoint/>'
         '<geom size="0.02" mass="0.1"/></body></worldbody></mujoco>')
     data = mujoco.MjData(model)
     free = measure_hold(model, data, model.body("ball").id)
     assert not free.held and free.grip_n == 0 and free.capacity_n == 0
-    assert math.isnan(free.pull_ratio)
+    assert math.isnan(free.pull_ratio) and math.isnan(free.slip_pull_ratio)
+    assert math.isnan(free.slip_cone_min) and math.isnan(free.slip_cone_max)
     assert free.slip_mm_s > 1000 and free.pull_n < MAX_PULL
     assert free.weight_n == pytest.approx(0.1 * 9.81)
     # A ball resting on a hand geom: its support is the contact's normal force, its weight,
@@ -228,6 +231,12 @@ def test_hold_probe_measures_a_held_grasp_and_a_free_fall(builtin_data: Config) 
         assert rest.held and rest.slip_mm_s < 0.01
         assert rest.capacity_n == pytest.approx(0.1 * 9.81, rel=0.01)
         assert rest.pull_ratio > 5
+        # Pressed down by the pull (until the soft contact let it sink 5 mm), the contact's
+        # force, so its capacity, grew with the load.
+        assert rest.slip_capacity_n == pytest.approx(0.1 * 9.81 + rest.pull_n, rel=0.05)
+        assert rest.slip_capacity_n > 10 * rest.capacity_n
+        assert rest.slip_cone_max < 0.01  # pressed straight down: no friction used
+        assert rest.slip_pull_ratio == pytest.approx(1.0, rel=0.05)
 
 
 def test_demo_runs_a_named_family_variant(builtin_data: Config, monkeypatch: pytest.MonkeyPatch,

@@ -153,7 +153,10 @@ class RobotConfig(_Checked):
     the 30 Hz control rate, the authors' a * dt * 5; a finger's 1.571 rad range in ~10
     actions."""
     home_hand_height: float = bounded(0.28, gt=0)
-    """Palm keypoint height above the table at reset (m)."""
+    """Palm keypoint height above the table at reset (m). The open hand reaches ~0.10 m below
+    it: building a task warns when the hand at home touches an object in some of its settled
+    initial states (results/home-contact-2026-11-26/: at 0.14, configs/cpu.toml's, the toy
+    airplane in 58 of 64, the ball 35, the apple 23, the Rubik's cube 19)."""
     pos_step: float = bounded(0.02, ge=0)
     """Hand translation per action at |a| = 1 (m)."""
     rot_step: float = bounded(0.1, ge=0)

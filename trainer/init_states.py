@@ -202,3 +202,28 @@ def load_or_build_bank(
     with atomic_path(path) as tmp, open(tmp, "wb") as handle:
         np.save(handle, bank)
     return bank
+
+
+def hand_touches(model: mujoco.MjModel, home_qpos: np.ndarray, states: np.ndarray,
+                 slot_qpos: np.ndarray, hand_bit: int) -> np.ndarray:
+    """(B, K) bool: in which of the settled ``states`` (B, K, 7) (slot poses: position,
+    quaternion) the robot in its ``home_qpos`` (nq,) touches the object of slot k, by MuJoCo's
+    collision detection on ``model`` (that layout's): a hand geom (``contype`` with
+    ``hand_bit``) in contact with one of the slot's geoms. ``slot_qpos`` (K, 7): each slot's
+    qpos addresses."""
+    data = mujoco.MjData(model)
+    hand = (model.geom_contype & hand_bit) != 0
+    body_slot = np.full(model.nbody, -1)
+    for k in range(slot_qpos.shape[0]):
+        root = model.body(slot_name(k)).id
+        body_slot[np.flatnonzero(model.body_rootid == root)] = k
+    geom_slot = body_slot[model.geom_bodyid]
+    out = np.zeros(states.shape[:2], dtype=bool)
+    for b, state in enumerate(states):
+        data.qpos[:] = home_qpos
+        data.qpos[slot_qpos.reshape(-1)] = state.reshape(-1)
+        mujoco.mj_fwdPosition(model, data)
+        g1, g2 = data.contact.geom1[: data.ncon], data.contact.geom2[: data.ncon]
+        for slot in (geom_slot[g2][hand[g1]], geom_slot[g1][hand[g2]]):
+            out[b, slot[slot >= 0]] = True
+    return out

@@ -291,8 +291,7 @@ def measure(
 
     ``hold`` (CPU backend): each trial that ends the script lifted is probed by
     ``hold.measure_hold``; each row gains ``held_end`` (how many the hand held through the
-    probe's hold) and their medians ``slip_mm_s``, ``grip_n`` and ``pull_ratio`` (empty
-    without such a trial)."""
+    probe's hold) and the medians of ``HOLD_KEYS`` over those (empty without such a trial)."""
     from trainer.config import check_device, load_env_config
     from trainer.grasps.outcomes import outcome_rows
     from trainer.objects import resolve_names
@@ -318,6 +317,12 @@ def measure(
     return rows
 
 
+HOLD_KEYS = ("slip_mm_s", "grip_n", "pull_ratio", "slip_grip_n", "slip_pull_ratio",
+             "slip_cone_min", "slip_cone_max")
+"""The hold probe's measurements (``hold.Hold`` fields and properties) that ``measure(...,
+hold=True)`` adds to each row, as medians over the held trials."""
+
+
 def _probe_holds(env: Any, held: Any) -> dict[int, Any]:
     """Env id -> ``Hold`` for every env whose target is lifted at the script's end."""
     from trainer.assets.scene import slot_name
@@ -336,7 +341,9 @@ def _probe_holds(env: Any, held: Any) -> dict[int, Any]:
 
 def _add_hold_columns(rows: list[dict], names: Sequence[str], ids: Any,
                       holds: dict[int, Any]) -> None:
-    """Each object's row gains ``held_end`` and the medians of its holds' measurements."""
+    """Each object's row gains ``held_end`` and the medians of its holds' measurements (over
+    the holds where a measurement is defined: a ratio needs a contact)."""
+    import math
     import statistics
 
     by_name = {row["object"]: row for row in rows}
@@ -346,5 +353,6 @@ def _add_hold_columns(rows: list[dict], names: Sequence[str], ids: Any,
         mine = [h for i, h in holds.items() if int(ids[i]) == k and h.held]
         row = by_name[name]
         row["held_end"] = len(mine)
-        for key in ("slip_mm_s", "grip_n", "pull_ratio"):  # ``Hold`` fields of the same names
-            row[key] = round(statistics.median(getattr(h, key) for h in mine), 3) if mine else ""
+        for key in HOLD_KEYS:  # ``Hold`` fields and properties of the same names
+            values = [v for v in (getattr(h, key) for h in mine) if not math.isnan(v)]
+            row[key] = round(statistics.median(values), 3) if values else ""

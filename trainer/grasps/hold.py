@@ -15,7 +15,12 @@ From the state at the end of a scripted grasp, with the hand's controls held:
    held at that moment (the target's weight plus the pull) over the support capacity measured
    while holding: 1.0 means the grip resisted everything friction times its force allows
    (the squeeze may rise under load, so a ratio above 1 is possible). Soft contacts creep under
-   a tangential load below the friction limit, so a ratio well below 1 names creep.
+   a tangential load below the friction limit, so a ratio well below 1 names creep. The
+   contacts' capacity is measured again at the moment the pull ends (``slip_capacity_n``):
+   where the squeeze falls under the pull (a force-limited servo yielding), the load over that
+   (``slip_pull_ratio``) tells a grip that lost force from contacts that slid below their limit;
+   and each contact's use of its friction cone then (``slip_cone_min`` / ``slip_cone_max``: 1 is
+   at its limit, sliding) tells whether the contacts gave way together or one pad first.
 
 One env at a time on a plain ``MjData`` (a probe, not a hot path: a few trials per object).
 """
@@ -59,6 +64,15 @@ class Hold:
     """The target's weight (N)."""
     pull_n: float
     """The downward pull at which the target slipped ``SLIP_MM`` (N); ``MAX_PULL`` if never."""
+    slip_grip_n: float
+    """The grip's summed normal force when the pull ended (N)."""
+    slip_capacity_n: float
+    """The contacts' capacity (as ``capacity_n``) when the pull ended (N)."""
+    slip_cone_min: float
+    """When the pull ended, the least use of its friction cone among the hand-target contacts
+    that push (``cone_use``; NaN without one)."""
+    slip_cone_max: float
+    """... and the most (1: that contact is at its friction limit, sliding)."""
     held: bool
     """Whether the hand held the target through the settle and hold (``DROP_MM``); the other
     fields of a target that was not held measure a fall, not a grip."""
@@ -69,6 +83,13 @@ class Hold:
         if self.capacity_n <= 0:
             return math.nan
         return (self.weight_n + self.pull_n) / self.capacity_n
+
+    @property
+    def slip_pull_ratio(self) -> float:
+        """(weight + pull) / the capacity when the pull ended; NaN without contact then."""
+        if self.slip_capacity_n <= 0:
+            return math.nan
+        return (self.weight_n + self.pull_n) / self.slip_capacity_n
 
 
 def _palm_frame(data: mujoco.MjData, palm: int, body: int) -> np.ndarray:
@@ -94,6 +115,25 @@ def _grip(model: mujoco.MjModel, data: mujoco.MjData, hand: np.ndarray, on_targe
         friction = data.contact.friction[c, 0] * math.sqrt(max(0.0, 1.0 - n_z**2))
         capacity += force[0] * (n_z + friction)
     return normal, capacity
+
+
+def cone_use(model: mujoco.MjModel, data: mujoco.MjData, hand: np.ndarray,
+             on_target: np.ndarray, force: np.ndarray) -> list[float]:
+    """Per hand-target contact with a normal force, how much of its (elliptic) friction cone
+    its force uses: sqrt(sum_k (f_k / mu_k)^2) / N over its frictional components (sliding,
+    torsional, rolling as its condim has them); 1 at the cone's surface."""
+    out = []
+    for c in range(data.ncon):
+        g1, g2 = data.contact.geom1[c], data.contact.geom2[c]
+        if not ((hand[g1] and on_target[g2]) or (hand[g2] and on_target[g1])):
+            continue
+        mujoco.mj_contactForce(model, data, c, force)
+        dim = int(data.contact.dim[c])
+        if force[0] <= 1e-9 or dim < 3:
+            continue
+        mu = data.contact.friction[c, : dim - 1]
+        out.append(float(np.linalg.norm(force[1:dim] / mu) / force[0]))
+    return out
 
 
 def measure_hold(model: mujoco.MjModel, data: mujoco.MjData, target: int) -> Hold:
@@ -128,5 +168,8 @@ def measure_hold(model: mujoco.MjModel, data: mujoco.MjData, target: int) -> Hol
         mujoco.mj_step(model, data)
         if np.linalg.norm(_palm_frame(data, palm, target) - held) * 1000.0 > SLIP_MM:
             break
+    slip_grip, slip_capacity = _grip(model, data, hand, on_target, force)
+    use = cone_use(model, data, hand, on_target, force) or [math.nan]
     data.xfrc_applied[target] = 0.0
-    return Hold(slip, float(normal), float(capacity), weight, min(pull, MAX_PULL), kept)
+    return Hold(slip, float(normal), float(capacity), weight, min(pull, MAX_PULL),
+                float(slip_grip), float(slip_capacity), min(use), max(use), kept)

@@ -40,10 +40,11 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.envs import EnvBase
 
 from geomgrasp.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix, rotation_6d
+from trainer.assets.collision import BIT_HAND
 from trainer.assets.scene import Scene, slot_qpos_addresses, slot_qvel_addresses
 from trainer.config import EnvConfig
 from trainer.errors import TrainerError
-from trainer.init_states import load_or_build_bank
+from trainer.init_states import hand_touches, load_or_build_bank
 from trainer.kinematics import SiteKinematics
 from trainer.objects import ObjectSet, load_objects, resolve_names
 from trainer.randomness import RandomStreams
@@ -145,6 +146,7 @@ class GraspTask(EnvBase):
             self.model
         )
 
+        self._warn_home_contact()
         self._rng = self.streams.torch("resets", self.device)
         self.state = TensorDict(
             {
@@ -180,6 +182,33 @@ class GraspTask(EnvBase):
         self.action_spec = spec["action"]
         self.reward_spec = spec["reward"]
         self.done_spec = spec["done"]
+
+    def _warn_home_contact(self) -> None:
+        """One warning if the hand at its home pose touches some object in its settled states:
+        those episodes start with the hand already on (or in) the object, whose first steps
+        then push it around (a lift may even count) without any action. Checked where the
+        backend holds each layout's model (the CPU backend's): MuJoCo's collision detection on
+        every state of the banks."""
+        if len(self.backend.models) != len(self.layouts):
+            return
+        home = self.home_qpos.cpu().numpy()
+        slots = self.slot_qpos.cpu().numpy()
+        banks = self.banks.cpu().numpy()
+        touched = np.stack([hand_touches(model, home, banks[i], slots, BIT_HAND)
+                            for i, model in enumerate(self.backend.models)])  # (L, B, K)
+        ids = self.layouts.cpu().numpy()[:, None, :].repeat(touched.shape[1], 1)
+        clash = [(int(touched[ids == k].sum()), int((ids == k).sum()), name)
+                 for k, name in enumerate(self.objects.names) if touched[ids == k].any()]
+        if clash:
+            clash.sort(key=lambda c: -c[0] / c[1])
+            names = ", ".join(f"{n} ({a} of {b})" for a, b, n in clash[:10])
+            more = f" and {len(clash) - 10} more" if len(clash) > 10 else ""
+            warnings.warn(
+                f"the hand at its home pose touches settled states of {names}{more}: those "
+                f"episodes start with the hand on the object; raise [robot] home_hand_height "
+                f"(now {self.cfg.robot.home_hand_height} m) or leave them out",
+                stacklevel=3,
+            )
 
     # --- task hooks --------------------------------------------------------------------------
     def _layouts(
