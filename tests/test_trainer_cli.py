@@ -403,3 +403,16 @@ def test_bin_play_renders_episodes_of_the_target(
     assert code == 0, err
     assert out.startswith(f"{held[0]}: success ") and "/2, " in out and str(video) in out
     assert video.stat().st_size > 1000
+
+
+def test_a_trainer_warning_is_one_line_and_others_keep_their_source() -> None:
+    """The CLI prints a ``TrainerWarning`` (e.g. the hand starting in an object) as one
+    ``warning:`` line that names the setting; any other warning keeps Python's format."""
+    from trainer.errors import TrainerWarning
+
+    text = trainer.cli.format_warning(TrainerWarning("raise [robot] home_hand_height"),
+                                      TrainerWarning, "/somewhere/base.py", 12)
+    assert text == "warning: raise [robot] home_hand_height\n"
+    other = trainer.cli.format_warning(DeprecationWarning("old"), DeprecationWarning,
+                                       "/somewhere/lib.py", 7)
+    assert "/somewhere/lib.py:7" in other and "DeprecationWarning" in other

@@ -12,6 +12,7 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import dataclasses  # noqa: E402
+import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import TYPE_CHECKING  # noqa: E402
 
@@ -32,7 +33,7 @@ from trainer.config import (  # noqa: E402
     override,
     read_config_toml,
 )
-from trainer.errors import TrainerError  # noqa: E402
+from trainer.errors import TrainerError, TrainerWarning  # noqa: E402
 
 if TYPE_CHECKING:
     from trainer.grasps import Variant
@@ -644,8 +645,22 @@ def play(
                f"{shown} of them successes)")
 
 
+def format_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                   line: str | None = None) -> str:
+    """``warnings.formatwarning`` for the CLI: a ``TrainerWarning`` as one ``warning:`` line,
+    any other warning as Python formats it."""
+    if issubclass(category, TrainerWarning):
+        return f"warning: {message}\n"
+    return _python_format_warning(message, category, filename, lineno, line)
+
+
+_python_format_warning = warnings.formatwarning
+
+
 def main() -> None:
-    """Entry point: TrainerError becomes a one-line message and exit status 1."""
+    """Entry point: TrainerError becomes a one-line message and exit status 1; a
+    TrainerWarning one ``warning:`` line."""
+    warnings.formatwarning = format_warning
     run_cli(cli, (TrainerError,))
 
 

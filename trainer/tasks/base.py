@@ -43,7 +43,7 @@ from geomgrasp.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_ma
 from trainer.assets.collision import BIT_HAND
 from trainer.assets.scene import Scene, slot_qpos_addresses, slot_qvel_addresses
 from trainer.config import EnvConfig
-from trainer.errors import TrainerError
+from trainer.errors import TrainerError, TrainerWarning
 from trainer.init_states import hand_touches, load_or_build_bank
 from trainer.kinematics import SiteKinematics
 from trainer.objects import ObjectSet, load_objects, resolve_names
@@ -81,6 +81,7 @@ def _compiled_or_eager(function):  # noqa: ANN001, ANN202
             warnings.warn(
                 f"torch.compile failed ({str(err).splitlines()[0][:200]}); the env runs eagerly "
                 "(install g++ and the Python headers, or pass --no-compile)",
+                TrainerWarning,
                 stacklevel=2,
             )
             current = function
@@ -207,6 +208,7 @@ class GraspTask(EnvBase):
                 f"the hand at its home pose touches settled states of {names}{more}: those "
                 f"episodes start with the hand on the object; raise [robot] home_hand_height "
                 f"(now {self.cfg.robot.home_hand_height} m) or leave them out",
+                TrainerWarning,
                 stacklevel=3,
             )
 
