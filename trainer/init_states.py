@@ -27,7 +27,7 @@ from mujoco import rollout
 
 from geomgrasp.files import atomic_path
 from geomgrasp.rotations import quat_to_matrix, random_quats
-from trainer.assets.scene import Scene, build_scene, slot_name, slot_qpos_addresses
+from trainer.assets.scene import Scene, build_scene, slot_geoms, slot_name, slot_qpos_addresses
 from trainer.config import EnvConfig, config_dict
 from trainer.errors import TrainerError
 
@@ -213,11 +213,9 @@ def hand_touches(model: mujoco.MjModel, home_qpos: np.ndarray, states: np.ndarra
     qpos addresses."""
     data = mujoco.MjData(model)
     hand = (model.geom_contype & hand_bit) != 0
-    body_slot = np.full(model.nbody, -1)
+    geom_slot = np.full(model.ngeom, -1)
     for k in range(slot_qpos.shape[0]):
-        root = model.body(slot_name(k)).id
-        body_slot[np.flatnonzero(model.body_rootid == root)] = k
-    geom_slot = body_slot[model.geom_bodyid]
+        geom_slot[slot_geoms(model, k)] = k
     out = np.zeros(states.shape[:2], dtype=bool)
     for b, state in enumerate(states):
         data.qpos[:] = home_qpos

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from geomgrasp.files import atomic_path
-from trainer.assets.scene import slot_name
+from trainer.assets.scene import hand_geoms, slot_geoms, slot_name
 from trainer.camera import CameraView, TrackingCamera
 from trainer.errors import TrainerError
 from trainer.tasks import GraspTask
@@ -223,25 +223,6 @@ def mjv_camera(view: CameraView) -> mujoco.MjvCamera:
     cam.azimuth = view.azimuth
     cam.elevation = view.elevation
     return cam
-
-
-def subtree_geoms(model: mujoco.MjModel, root: int) -> np.ndarray:
-    """Geom ids of body ``root`` and every body below it."""
-    inside = np.zeros(model.nbody, dtype=bool)
-    for body in range(model.nbody):
-        # Parents come before children in MuJoCo's body order, so one pass marks the subtree.
-        inside[body] = body == root or (body > 0 and inside[model.body_parentid[body]])
-    return np.flatnonzero(inside[model.geom_bodyid])
-
-
-def hand_geoms(model: mujoco.MjModel) -> np.ndarray:
-    """Geom ids of the hand: the ``palm`` body and every body below it."""
-    return subtree_geoms(model, model.body("palm").id)
-
-
-def slot_geoms(model: mujoco.MjModel, slot: int) -> np.ndarray:
-    """Geom ids of the object in slot ``slot`` (its body ``slot{k}`` and anything below it)."""
-    return subtree_geoms(model, model.body(slot_name(slot)).id)
 
 
 def bin_geoms(model: mujoco.MjModel) -> np.ndarray:

@@ -53,6 +53,25 @@ def slot_name(k: int) -> str:
     return f"slot{k}"
 
 
+def subtree_geoms(model: mujoco.MjModel, root: int) -> np.ndarray:
+    """Geom ids of body ``root`` and every body below it."""
+    inside = np.zeros(model.nbody, dtype=bool)
+    for body in range(model.nbody):
+        # Parents come before children in MuJoCo's body order, so one pass marks the subtree.
+        inside[body] = body == root or (body > 0 and inside[model.body_parentid[body]])
+    return np.flatnonzero(inside[model.geom_bodyid])
+
+
+def hand_geoms(model: mujoco.MjModel) -> np.ndarray:
+    """Geom ids of the hand: the ``palm`` body and every body below it."""
+    return subtree_geoms(model, model.body("palm").id)
+
+
+def slot_geoms(model: mujoco.MjModel, slot: int) -> np.ndarray:
+    """Geom ids of the object in slot ``slot`` (its body ``slot{k}`` and anything below it)."""
+    return subtree_geoms(model, model.body(slot_name(slot)).id)
+
+
 def _slot_joints(model: mujoco.MjModel, num_slots: int) -> np.ndarray:
     """(K,) int: each slot's free joint."""
     return np.array(

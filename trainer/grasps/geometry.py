@@ -45,3 +45,10 @@ def steer(env: GraspTask, goal: torch.Tensor, rot: torch.Tensor, rate: float = 1
     move = ((goal - command_pos) / robot.pos_step).clamp(-rate, rate)
     turn = matrix_to_axis_angle(rot @ command_rot.transpose(1, 2)) / robot.rot_step
     return torch.cat([move, turn.clamp(-1.0, 1.0)], dim=-1)
+
+
+def ramp(step: int, start: int, steps: int) -> float:
+    """How much of a phase of ``steps`` actions that begins at action ``start`` is done after
+    action ``step``: 0 before it, 1 from its last action on."""
+    return min(max((step - start + 1) / steps, 0.0), 1.0)
+

@@ -97,21 +97,22 @@ def _palm_frame(data: mujoco.MjData, palm: int, body: int) -> np.ndarray:
     return data.xmat[palm].reshape(3, 3).T @ (data.xpos[body] - data.xpos[palm])
 
 
+def _grip_contacts(data: mujoco.MjData, hand: np.ndarray, on_target: np.ndarray) -> np.ndarray:
+    """Indices of the contacts between ``hand`` and ``on_target`` geoms ((ngeom,) bool masks)."""
+    g1, g2 = data.contact.geom1[: data.ncon], data.contact.geom2[: data.ncon]
+    return np.flatnonzero((hand[g1] & on_target[g2]) | (hand[g2] & on_target[g1]))
+
+
 def _grip(model: mujoco.MjModel, data: mujoco.MjData, hand: np.ndarray, on_target: np.ndarray,
           force: np.ndarray) -> tuple[float, float]:
     """(summed normal force, support capacity) of the contacts between ``hand`` and
     ``on_target`` geoms ((ngeom,) bool masks) (N): see ``Hold.capacity_n``."""
-    ncon = data.ncon
-    if ncon == 0:
-        return 0.0, 0.0
-    g1, g2 = data.contact.geom1[:ncon], data.contact.geom2[:ncon]
-    pair = (hand[g1] & on_target[g2]) | (hand[g2] & on_target[g1])
     normal = capacity = 0.0
-    for c in np.flatnonzero(pair):
+    for c in _grip_contacts(data, hand, on_target):
         mujoco.mj_contactForce(model, data, int(c), force)
         normal += force[0]
         # frame row 0 is the normal, from geom1 toward geom2: the force pushes geom2 along it.
-        n_z = data.contact.frame[c, 2] * (1.0 if on_target[g2[c]] else -1.0)
+        n_z = data.contact.frame[c, 2] * (1.0 if on_target[data.contact.geom2[c]] else -1.0)
         friction = data.contact.friction[c, 0] * math.sqrt(max(0.0, 1.0 - n_z**2))
         capacity += force[0] * (n_z + friction)
     return normal, capacity
@@ -123,11 +124,8 @@ def cone_use(model: mujoco.MjModel, data: mujoco.MjData, hand: np.ndarray,
     its force uses: sqrt(sum_k (f_k / mu_k)^2) / N over its frictional components (sliding,
     torsional, rolling as its condim has them); 1 at the cone's surface."""
     out = []
-    for c in range(data.ncon):
-        g1, g2 = data.contact.geom1[c], data.contact.geom2[c]
-        if not ((hand[g1] and on_target[g2]) or (hand[g2] and on_target[g1])):
-            continue
-        mujoco.mj_contactForce(model, data, c, force)
+    for c in _grip_contacts(data, hand, on_target):
+        mujoco.mj_contactForce(model, data, int(c), force)
         dim = int(data.contact.dim[c])
         if force[0] <= 1e-9 or dim < 3:
             continue

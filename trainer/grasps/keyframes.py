@@ -30,7 +30,7 @@ import torch
 
 from geomgrasp.rotations import axis_angle_to_matrix
 from trainer.errors import TrainerError
-from trainer.grasps.geometry import steer
+from trainer.grasps.geometry import ramp, steer
 from trainer.grasps.top import TopGrasp, grasp_frame
 from trainer.robots import sih
 from trainer.tasks import GraspTask
@@ -147,7 +147,7 @@ class KeyframeGrasp:
         t2 = t1 + self.descend_steps
         t3 = t2 + self.close_steps
         t4 = t3 + self.settle_steps
-        frac = min(max((step - t2 + 1) / self.close_steps, 0.0), 1.0)  # the close's progress
+        frac = ramp(step, t2, self.close_steps)  # the close's progress
         goal = plan["goal"] + frac * plan["drag"]
         if step < t1:
             goal = goal + torch.tensor([0.0, 0.0, self.hover], device=goal.device)

@@ -36,7 +36,7 @@ import numpy as np
 import torch
 
 from geomgrasp.rotations import quat_to_matrix
-from trainer.grasps.geometry import narrowest_horizontal, steer, target_box
+from trainer.grasps.geometry import narrowest_horizontal, ramp, steer, target_box
 from trainer.robots import sih
 from trainer.tasks import GraspTask
 
@@ -121,7 +121,7 @@ class Pinch:
         t1 = t0 + self.descend_steps
         t2 = t1 + self.close_steps
         t3 = t2 + self.settle_steps
-        frac = min(max((step - t1 + 1) / self.close_steps, 0.0), 1.0)
+        frac = ramp(step, t1, self.close_steps)
         k = int(round(frac * (len(plan["fracs"]) - 1)))
         goal[:, 2] = plan["height"][:, k]
         if step < t0:

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import torch
 
-from trainer.grasps.geometry import steer, target_box
+from trainer.grasps.geometry import ramp, steer, target_box
 from trainer.tasks import GraspTask
 
 
@@ -118,26 +118,21 @@ class SlideGrasp:
         t_close, t_settle = self.close_window
         t_lift = t_settle + self.settle_steps
         up = torch.tensor([0.0, 0.0, 1.0], device=plan["start"].device)
-
-        def progress(t0: int, steps: int) -> float:
-            return min(max((step - t0 + 1) / steps, 0.0), 1.0)
-
-        travel = self.slide * progress(t_slide, self.slide_steps) + self.push * progress(
-            t_push, self.push_steps)
+        curl = ramp(step, t_curl, self.curl_steps)
+        push = ramp(step, t_push, self.push_steps)
+        close = ramp(step, t_close, self.close_steps)
+        travel = self.slide * ramp(step, t_slide, self.slide_steps) + self.push * push
         goal = plan["start"] + travel * plan["inward"]
         rate = 1.0
         if step < t_descend:
             goal = goal + self.hover * up
         elif step < t_slide:
-            goal = goal + self.hover * (1.0 - progress(t_descend, self.descend_steps)) * up
+            goal = goal + self.hover * (1.0 - ramp(step, t_descend, self.descend_steps)) * up
         elif step < t_close:
             rate = self.slide_rate
         elif step >= t_lift:
             goal = goal + self.lift * up
             rate = self.lift_rate
-        curl = progress(t_curl, self.curl_steps)
-        push = progress(t_push, self.push_steps)
-        close = progress(t_close, self.close_steps)
         fingers = (self.fingers_open + curl * (self.fingers_curled - self.fingers_open)
                    + push * (self.fingers_pushed - self.fingers_curled)
                    + close * (self.fingers_closed - self.fingers_pushed))
