@@ -60,7 +60,7 @@ def test_partial_reset_touches_only_masked_envs(env: GraspTask) -> None:
     after = env.backend.qpos
     assert env.state["step_count"].tolist() == [3, 3, 0, 3, 3, 3, 3]
     assert torch.equal(after[mask[:, 0].logical_not()], before[mask[:, 0].logical_not()])
-    torch.testing.assert_close(after[2, :6], env.home_qpos[:6])
+    torch.testing.assert_close(after[2, :6], env.home_qpos[0, :6])
 
 
 def test_reward_matches_hand_computation(env: GraspTask) -> None:
@@ -352,23 +352,52 @@ def test_a_hand_that_starts_in_the_object_is_reported(builtin_data: Config) -> N
     from trainer.assets.collision import BIT_HAND
     from trainer.errors import TrainerWarning
     from trainer.init_states import hand_touches
+    from trainer.tasks.base import turned
 
-    def build(home: float) -> tuple[list[str], int]:
-        cfg = load_env_config(num_envs=2, objects="builtin_cylinder", representation="com",
-                              data_dir=builtin_data.data_dir, robot={"home_hand_height": home})
+    def build(home: float, above: bool = False) -> tuple[list[str], GraspTask]:
+        cfg = load_env_config(num_envs=16, objects="builtin_cylinder", representation="com",
+                              data_dir=builtin_data.data_dir,
+                              robot={"home_hand_height": home, "home_above_objects": above})
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             env = make_env(cfg, seed=0)
-        messages = [str(w.message) for w in caught if issubclass(w.category, TrainerWarning)]
-        states = env.banks[0].cpu().numpy()  # (B, 1, 7): the one layout's settled states
-        touched = hand_touches(env.backend.models[0], env.home_qpos.cpu().numpy(), states,
-                               env.slot_qpos.cpu().numpy(), BIT_HAND)
-        assert touched.shape == (states.shape[0], 1)
-        env.close()
-        return messages, int(touched.sum())
+        return [str(w.message) for w in caught if issubclass(w.category, TrainerWarning)], env
 
-    (low,), touched = build(0.05)
-    assert touched > 32  # the palm 5 cm above the table: in most of the cylinder's states
-    assert f"builtin_cylinder ({touched} of 64)" in low and "raise [robot] home_hand_height" in low
+    def touched(env: GraspTask, home: int) -> np.ndarray:
+        """(B,): the settled states the hand at ``home`` touches turned to any of 16 yaws."""
+        states = env.banks[0]  # (B, 1, 7): the one layout's settled states
+        yaws = torch.arange(16) * (torch.pi / 8)
+        states = turned(states.repeat_interleave(16, 0), yaws.repeat(len(states)))
+        hits = hand_touches(env.backend.models[0], env.home_qpos[home].cpu().numpy(),
+                            states.numpy(), env.slot_qpos.cpu().numpy(), BIT_HAND)
+        return hits.reshape(-1, 16).any(1)
+
+    (low,), env = build(0.05)
+    count = int(touched(env, 0).sum())
+    assert count > 32  # the palm 5 cm above the table: in most of the cylinder's states
+    assert f"builtin_cylinder ({count} of 64)" in low and "home_above_objects = true" in low
     assert "\n" not in low
-    assert build(0.28) == ([], 0)
+    env.close()
+    messages, env = build(0.28)
+    assert messages == [] and not touched(env, 0).any() and len(env.home_height) == 1
+    env.close()
+    # Raised per settled state: each starts from the lowest 1 cm step that touches nothing.
+    messages, env = build(0.05, above=True)
+    assert messages == []
+    torch.testing.assert_close(env.home_height, 0.05 + 0.01 * torch.arange(len(env.home_height)))
+    index = env.home_index[0].cpu().numpy()
+    hits = np.stack([touched(env, h) for h in range(len(env.home_height))])  # (H, B)
+    states = np.arange(len(index))
+    assert not hits[index, states].any() and hits[index[index > 0] - 1, states[index > 0]].all()
+    assert index.min() < index.max()  # lying states start lower than standing ones
+    # After a reset every env's hand is clear of its object, the palm at one of the heights.
+    env.reset()
+    qpos = env.backend.qpos.cpu().numpy()
+    slots = env.slot_qpos.cpu().numpy()
+    for i in range(env.cfg.num_envs):
+        state = qpos[i, slots][None]  # (1, 1, 7): the object as the reset turned it
+        assert not hand_touches(env.backend.models[0], qpos[i], state, slots, BIT_HAND).any()
+    palm = env.kinematics.forward(env.backend.qpos).site_pos[:, 0, 2]
+    assert ((palm[:, None] - env.home_height).abs().min(1).values < 2e-3).all()
+    torch.testing.assert_close(env.state["palm_pos"][:, 2], palm, atol=2e-3, rtol=0)
+    env.close()

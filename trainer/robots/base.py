@@ -74,10 +74,12 @@ class Robot(ABC):
         """6 palm-pose deltas, then the hand's DoF."""
         return 6 + self.hand.action_dim
 
-    def home_pose(self) -> tuple[np.ndarray, np.ndarray]:
-        """The reset pose of the hand: the palm keypoint ``home_hand_height`` above the table
-        centre, palm down. Returns (keypoint position (3,) m, palm rotation (3, 3)), world."""
-        return np.array([0.0, 0.0, self.cfg.home_hand_height]), PALM_DOWN
+    def home_pose(self, height: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The reset pose of the hand: the palm keypoint ``height`` (default
+        ``home_hand_height``) above the table centre, palm down. Returns (keypoint position
+        (3,) m, palm rotation (3, 3)), world."""
+        height = self.cfg.home_hand_height if height is None else height
+        return np.array([0.0, 0.0, height]), PALM_DOWN
 
     # --- the model -------------------------------------------------------------------------
     @abstractmethod
@@ -101,12 +103,13 @@ class Robot(ABC):
         """(11,) qpos addresses of the hand's joints (``sih.JOINTS``)."""
         return self.hand.qpos
 
-    def home(self, model: mujoco.MjModel) -> Home:
-        """Robot qpos and ctrl at reset: hand open, thumb opposed, palm down above the table."""
+    def home(self, model: mujoco.MjModel, height: float | None = None) -> Home:
+        """Robot qpos and ctrl at reset: hand open, thumb opposed, palm down ``height`` (default
+        ``home_hand_height``) above the table."""
         qpos = torch.as_tensor(model.qpos0, dtype=torch.float32, device=self.device).clone()
         ctrl = torch.zeros(model.nu, device=self.device)
         self.hand.home(qpos, ctrl)
-        keypoint, palm_rot = self.home_pose()
+        keypoint, palm_rot = self.home_pose(height)
         keypoint = torch.as_tensor(keypoint, dtype=torch.float32, device=self.device)
         palm_rot = torch.as_tensor(palm_rot, dtype=torch.float32, device=self.device)
         self._home_base(qpos, ctrl, keypoint, palm_rot)

@@ -160,10 +160,11 @@ class UR5eRobot(Robot):
         flange_pos = np.array([DH_A[5], 0.0, DH_D[5]])
         self.hand.build(spec, last_link, flange_pos + offset_pos, offset_quat)
 
-    def home_joints(self, iterations: int = 300) -> np.ndarray:
-        """Arm joints (6,) rad that put the hand at ``home_pose``, by damped least squares on
-        the DH model started from the authors' home configuration so the elbow stays up."""
-        keypoint, target_rot = self.home_pose()
+    def home_joints(self, height: float | None = None, iterations: int = 300) -> np.ndarray:
+        """Arm joints (6,) rad that put the hand at ``home_pose(height)``, by damped least
+        squares on the DH model started from the authors' home configuration so the elbow
+        stays up."""
+        keypoint, target_rot = self.home_pose(height)
         target_pos = keypoint - target_rot @ np.array(sih.PALM_KEYPOINT)
         offset_pos, offset_quat = flange_to_palm()
         offset_rot = quat_to_matrix_np(offset_quat)
@@ -209,7 +210,7 @@ class UR5eRobot(Robot):
     def _home_base(
         self, qpos: torch.Tensor, ctrl: torch.Tensor, keypoint: torch.Tensor, rot: torch.Tensor
     ) -> None:
-        arm = torch.as_tensor(self.home_joints(), dtype=torch.float32)
+        arm = torch.as_tensor(self.home_joints(float(keypoint[2])), dtype=torch.float32)
         qpos[self.arm_qpos] = arm.to(self.device)
         ctrl[self.arm_actuators] = arm.to(self.device)
 

@@ -66,6 +66,21 @@ out of the UR5e's reach (0.85 m from its base): only a blown-up contact puts it 
 LAUNCH_SPEED = 10.0
 """An object moving faster than this (m/s) was launched by a blown-up contact: the arm moves the
 hand at ~1 m/s and an object falling off the table reaches ~1 m/s before it is reset."""
+HOME_RAISE = 0.01
+"""``[robot] home_above_objects``: the home height rises in steps of this (m) ..."""
+HOME_RAISE_STEPS = 30
+"""... at most this many (0.3 m); a state still touched there starts touched, with a warning."""
+HOME_CHECK_YAWS = 16
+"""The home-contact check turns each settled state to this many yaws (every 22.5 degrees)."""
+
+
+def turned(pose: torch.Tensor, yaw: torch.Tensor) -> torch.Tensor:
+    """Slot poses ``pose`` (n, K, 7) (position, quaternion) turned by ``yaw`` (n,) rad about the
+    vertical axis through the origin."""
+    spin = axis_angle_to_matrix(torch.stack([torch.zeros_like(yaw)] * 2 + [yaw], -1))
+    pos = (spin[:, None] @ pose[..., :3, None])[..., 0]
+    quat = matrix_to_quat(spin[:, None] @ quat_to_matrix(pose[..., 3:]))
+    return torch.cat([pos, quat], dim=-1)
 
 
 def _compiled_or_eager(function):  # noqa: ANN001, ANN202
@@ -142,22 +157,19 @@ class GraspTask(EnvBase):
         self.robot.index(self.model, self.device)
         self.hand_qpos = self.robot.hand_qpos  # (11,) qpos addresses of the hand's joints
         self.kinematics = SiteKinematics(self.model, self.robot.sites, self.device)
-        # The robot's state at reset: qpos (nq,), ctrl (nu,), commanded palm pose (3,), (3, 3).
-        self.home_qpos, self.home_ctrl, self.home_keypoint, self.home_rot = self.robot.home(
-            self.model
-        )
-
-        self._warn_home_contact()
+        # The robot's states at reset (home_qpos (H, nq) etc.) and which one each settled state
+        # of each layout starts from (home_index (L, B)).
+        self._set_homes()
         self._rng = self.streams.torch("resets", self.device)
         self.state = TensorDict(
             {
                 "step_count": torch.zeros(E, dtype=torch.long),
                 "start_height": torch.zeros(E),
                 "target_slot": torch.zeros(E, dtype=torch.long),
-                "target_pos": self.home_keypoint.repeat(E, 1),
+                "target_pos": self.home_keypoint[0].repeat(E, 1),
                 "target_rot": self.home_rot.repeat(E, 1, 1),
-                "ctrl": self.home_ctrl.repeat(E, 1),
-                "palm_pos": self.home_keypoint.repeat(E, 1),
+                "ctrl": self.home_ctrl[0].repeat(E, 1),
+                "palm_pos": self.home_keypoint[0].repeat(E, 1),
             },
             batch_size=[E],
             device=self.device,
@@ -184,19 +196,60 @@ class GraspTask(EnvBase):
         self.reward_spec = spec["reward"]
         self.done_spec = spec["done"]
 
-    def _warn_home_contact(self) -> None:
-        """One warning if the hand at its home pose touches some object in its settled states:
-        those episodes start with the hand already on (or in) the object, whose first steps
-        then push it around (a lift may even count) without any action. Checked where the
-        backend holds each layout's model (the CPU backend's): MuJoCo's collision detection on
-        every state of the banks."""
-        if len(self.backend.models) != len(self.layouts):
-            return
-        home = self.home_qpos.cpu().numpy()
-        slots = self.slot_qpos.cpu().numpy()
-        banks = self.banks.cpu().numpy()
-        touched = np.stack([hand_touches(model, home, banks[i], slots, BIT_HAND)
-                            for i, model in enumerate(self.backend.models)])  # (L, B, K)
+    def _set_homes(self) -> None:
+        """The robot's reset states: ``home_qpos`` (H, nq), ``home_ctrl`` (H, nu),
+        ``home_keypoint`` (H, 3) m and ``home_height`` (H,) m for H home heights, the first
+        ``home_hand_height``, each next 1 cm higher; ``home_rot`` (3, 3), the same for all; and
+        ``home_index`` (L, B): the home each settled state of each layout starts from. Without
+        ``home_above_objects`` that is the first (H = 1); with it, the lowest at which the
+        hand touches none of the state's objects. Then one warning if the hand at home still
+        touches some object (``_warn_home_contact``)."""
+        base = self.cfg.robot.home_hand_height
+        steps = HOME_RAISE_STEPS if self.cfg.robot.home_above_objects else 0
+        L, B = self.banks.shape[:2]
+        index = np.zeros((L, B), dtype=np.int64)
+        touched = np.zeros((L, B, self.banks.shape[2]), dtype=bool)
+        pending = np.ones((L, B), dtype=bool)  # states the hand still touches at this height
+        homes = []
+        for step in range(steps + 1):
+            homes.append(self.robot.home(self.model, base + HOME_RAISE * step))
+            for layout in np.flatnonzero(pending.any(1)):
+                states = np.flatnonzero(pending[layout])
+                hit = self._hand_touches(layout, homes[-1].qpos, states)
+                index[layout, states] = step
+                touched[layout, states] = hit
+                pending[layout, states] = hit.any(1)
+            if not pending.any():
+                break
+        self.home_qpos = torch.stack([h.qpos for h in homes])
+        self.home_ctrl = torch.stack([h.ctrl for h in homes])
+        self.home_keypoint = torch.stack([h.keypoint for h in homes])
+        self.home_height = self.home_keypoint[:, 2].clone()
+        self.home_rot = homes[0].rot
+        self.home_index = torch.as_tensor(index, device=self.device)
+        self._warn_home_contact(touched)
+
+    def _hand_touches(
+        self, layout: int, home_qpos: torch.Tensor, states: np.ndarray
+    ) -> np.ndarray:
+        """(len(states), K) bool: in which of the settled ``states`` (indices into the bank) of
+        ``layout`` the robot at ``home_qpos`` (nq,) touches slot k's object, at any of
+        ``HOME_CHECK_YAWS`` turns of the state about the vertical axis (a reset turns it by a
+        random one): MuJoCo's collision detection on the layout's model."""
+        poses = self.banks[layout, torch.as_tensor(states, device=self.device)]  # (S, K, 7)
+        yaws = torch.arange(HOME_CHECK_YAWS, device=self.device) * (2 * torch.pi / HOME_CHECK_YAWS)
+        poses = turned(poses.repeat_interleave(HOME_CHECK_YAWS, 0), yaws.repeat(len(states)))
+        hits = hand_touches(
+            self.backend.models[layout], home_qpos.cpu().numpy(), poses.cpu().numpy(),
+            self.slot_qpos.cpu().numpy(), BIT_HAND,
+        )
+        return hits.reshape(len(states), HOME_CHECK_YAWS, -1).any(1)
+
+    def _warn_home_contact(self, touched: np.ndarray) -> None:
+        """One warning if the hand at its home pose touches some object in its settled states
+        (``touched`` (L, B, K) bool): those episodes start with the hand already on (or in) the
+        object, whose first steps then push it around (a lift may even count) without any
+        action."""
         ids = self.layouts.cpu().numpy()[:, None, :].repeat(touched.shape[1], 1)
         clash = [(int(touched[ids == k].sum()), int((ids == k).sum()), name)
                  for k, name in enumerate(self.objects.names) if touched[ids == k].any()]
@@ -204,12 +257,15 @@ class GraspTask(EnvBase):
             clash.sort(key=lambda c: -c[0] / c[1])
             names = ", ".join(f"{n} ({a} of {b})" for a, b, n in clash[:10])
             more = f" and {len(clash) - 10} more" if len(clash) > 10 else ""
+            height = float(self.home_height[-1])
+            fix = ("raise [robot] home_hand_height" if self.cfg.robot.home_above_objects else
+                   "set [robot] home_above_objects = true, raise home_hand_height")
             warnings.warn(
                 f"the hand at its home pose touches settled states of {names}{more}: those "
-                f"episodes start with the hand on the object; raise [robot] home_hand_height "
-                f"(now {self.cfg.robot.home_hand_height} m) or leave them out",
+                f"episodes start with the hand on the object; {fix} (now {height:.2f} m) or "
+                "leave them out",
                 TrainerWarning,
-                stacklevel=3,
+                stacklevel=4,
             )
 
     # --- task hooks --------------------------------------------------------------------------
@@ -310,23 +366,21 @@ class GraspTask(EnvBase):
         n = len(ids)
         pick = torch.randint(self.banks.shape[1], (n,), generator=self._rng, device=self.device)
         pose = self.banks[self.env_layout[ids], pick]  # (n, K, 7)
-        yaw = self._reset_yaw(n)
-        spin = axis_angle_to_matrix(torch.stack([torch.zeros_like(yaw)] * 2 + [yaw], -1))
-        pos = pose[..., :3].clone()
-        pos[..., :2] = (spin[:, None, :2, :2] @ pos[..., :2, None])[..., 0]
-        quat = matrix_to_quat(spin[:, None] @ quat_to_matrix(pose[..., 3:]))
-        qpos = self.home_qpos.repeat(n, 1)
-        qpos[:, self.slot_qpos] = torch.cat([pos, quat], dim=-1)
+        pose = turned(pose, self._reset_yaw(n))
+        pos = pose[..., :3]
+        home = self.home_index[self.env_layout[ids], pick]
+        qpos = self.home_qpos[home]
+        qpos[:, self.slot_qpos] = pose
         target_slot = self._choose_targets(n)
         fresh = TensorDict(
             {
                 "step_count": torch.zeros(n, dtype=torch.long, device=self.device),
                 "start_height": pos.gather(1, target_slot[:, None, None].expand(-1, 1, 3))[:, 0, 2],
                 "target_slot": target_slot,
-                "target_pos": self.home_keypoint.expand(n, 3),
+                "target_pos": self.home_keypoint[home],
                 "target_rot": self.home_rot.expand(n, 3, 3),
-                "ctrl": self.home_ctrl.expand(n, -1),
-                "palm_pos": self.home_keypoint.expand(n, 3),
+                "ctrl": self.home_ctrl[home],
+                "palm_pos": self.home_keypoint[home],
             },
             batch_size=[n],
             device=self.device,
