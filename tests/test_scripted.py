@@ -206,7 +206,7 @@ def test_filming_a_tape_renders_the_frames_of_a_live_recording(builtin_data: Con
         live.capture()
         tape.capture()
 
-    run_scripted_grasp(env, TopGrasp(), on_step)
+    run_scripted_grasp(env, TopGrasp(), on_step, steps=50)  # approach and descent: moving
     for step in range(3):  # the hold after the episodes (capture_hold), both recording
         env.hold()
         on_step(step)

@@ -217,10 +217,18 @@ def hand_touches(model: mujoco.MjModel, home_qpos: np.ndarray, states: np.ndarra
     for k in range(slot_qpos.shape[0]):
         geom_slot[slot_geoms(model, k)] = k
     out = np.zeros(states.shape[:2], dtype=bool)
-    for b, state in enumerate(states):
+    # Only states with an object reaching up to the hand's lowest point can touch it: the
+    # others (the lying objects under a high hand: most states) need no collision detection.
+    data.qpos[:] = home_qpos
+    mujoco.mj_kinematics(model, data)
+    bottom = (data.geom_xpos[hand, 2] - model.geom_rbound[hand] - model.geom_margin[hand]).min()
+    reach = states[..., 2] + slot_radii(model, slot_qpos.shape[0]) + model.geom_margin.max()
+    for b in np.flatnonzero((reach >= bottom).any(1)):
+        state = states[b]
         data.qpos[:] = home_qpos
         data.qpos[slot_qpos.reshape(-1)] = state.reshape(-1)
-        mujoco.mj_fwdPosition(model, data)
+        mujoco.mj_kinematics(model, data)  # geom poses: all that collision detection needs
+        mujoco.mj_collision(model, data)
         g1, g2 = data.contact.geom1[: data.ncon], data.contact.geom2[: data.ncon]
         for slot in (geom_slot[g2][hand[g1]], geom_slot[g1][hand[g2]]):
             out[b, slot[slot >= 0]] = True

@@ -105,10 +105,11 @@ def run_scripted_grasp(
     script: GraspScript | None = None,
     on_step: Callable[[int], None] | None = None,
     recorder: TrajectoryRecorder | None = None,
+    steps: int | None = None,
 ) -> torch.Tensor:
-    """Reset every env and run ``script`` (default: the top grasp); return (E,) bool: the
-    env's success at some step. ``on_step(step)`` is called after every action (e.g. to render
-    a frame); ``recorder`` captures the trajectory."""
+    """Reset every env and run ``script`` (default: the top grasp), or its first ``steps``
+    actions; return (E,) bool: the env's success at some step. ``on_step(step)`` is called
+    after every action (e.g. to render a frame); ``recorder`` captures the trajectory."""
     if env.cfg.robot.hand_action != "absolute":
         raise TrainerError(
             f"the scripted grasps command absolute hand targets, not [robot] hand_action = "
@@ -124,7 +125,7 @@ def run_scripted_grasp(
     env.reset()
     plan: dict = {}
     lifted = torch.zeros(env.num_envs, dtype=torch.bool, device=env.device)
-    for step in range(script.total_steps):
+    for step in range(script.total_steps if steps is None else min(steps, script.total_steps)):
         action = script.action(env, step, plan)
         td = env.step(TensorDict({"action": action}, batch_size=env.batch_size))
         success = td["next", "success"][:, 0]

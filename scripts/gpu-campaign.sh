@@ -1,0 +1,149 @@
+#!/usr/bin/env bash
+# The device side of the GPU campaign (scripts/gpu_campaign.py says how it is packed and called):
+# on a lent GPU machine, from the repository root, one call per part of .gpu-pack/carry/.
+#
+#   bash scripts/gpu-campaign.sh stage [PART...]   keep the carried part(s) for the next call
+#   bash scripts/gpu-campaign.sh run               unpack every part, train the campaign's next
+#                                                  chunk, evaluate it, put the files in $OUT
+#
+# A chunk trains until GPU_CAMPAIGN_DEADLINE seconds (default 560) after this command started,
+# less GPU_CAMPAIGN_RESERVE (default 120) for the evaluation and the copies, then stops with a
+# checkpoint (trainer run --minutes; `timeout -s INT` is the backstop: the trainer checkpoints
+# on SIGINT too). The run is results/gpu-table1-campaign/run: resumed if it holds a checkpoint,
+# else started from results/gpu-table1-campaign/campaign.toml.
+# For a check on the CPU (scripts/gpu_campaign.py check, tests/test_gpu_campaign.py):
+# GPU_CAMPAIGN_STAGE (the staging folder), GPU_CAMPAIGN_PYTHON, GPU_CAMPAIGN_SITE=none (use the
+# interpreter's own packages, no parts), GPU_CAMPAIGN_RUN (the run folder),
+# GPU_CAMPAIGN_OVERRIDE (TOML whose keys replace the campaign config's in a new run),
+# GPU_CAMPAIGN_STEPS (trainer run --steps: the run's total env steps after this chunk),
+# GPU_CAMPAIGN_EPISODES (eval episodes per object, default 20).
+set -uo pipefail
+start=$(date +%s)
+STAGE=${GPU_CAMPAIGN_STAGE:-/tmp/gpu-campaign}
+PY=${GPU_CAMPAIGN_PYTHON:-python3}
+SITE=${GPU_CAMPAIGN_SITE:-$STAGE/site}
+RUN=${GPU_CAMPAIGN_RUN:-results/gpu-table1-campaign/run}
+CONFIG=results/gpu-table1-campaign/campaign.toml
+DEADLINE=${GPU_CAMPAIGN_DEADLINE:-560}
+RESERVE=${GPU_CAMPAIGN_RESERVE:-120}
+EPISODES=${GPU_CAMPAIGN_EPISODES:-20}
+: "${OUT:?OUT must name the folder the files go to}"
+mkdir -p "$STAGE/parts" "$OUT"
+log() { echo "gpu-campaign [$(( $(date +%s) - start )) s] $*" | tee -a "$OUT/chunk.log"; }
+
+case "${1:-}" in
+  stage)
+    shift
+    parts=("$@")
+    [ ${#parts[@]} -gt 0 ] || parts=(.gpu-pack/carry/part-*)
+    cp "${parts[@]}" "$STAGE/parts/" || exit 1
+    log "staged: $(ls "$STAGE/parts" | tr '\n' ' ')"
+    exit 0 ;;
+  run) ;;
+  *) echo "usage: bash scripts/gpu-campaign.sh stage [PART...] | run" >&2; exit 2 ;;
+esac
+
+if [ "$SITE" != none ]; then
+  cp .gpu-pack/carry/part-* "$STAGE/parts/" 2>/dev/null
+  # Every part the manifest lists, unchanged, or no run (a part lost with a released machine).
+  "$PY" - "$STAGE/parts" .gpu-pack/carry/MANIFEST.json <<'EOF' || exit 1
+import hashlib, json, sys
+from pathlib import Path
+parts, manifest = Path(sys.argv[1]), json.loads(Path(sys.argv[2]).read_text())
+bad = [p["name"] for p in manifest["parts"] if not (parts / p["name"]).is_file()
+       or hashlib.sha256((parts / p["name"]).read_bytes()).hexdigest() != p["sha256"]]
+if bad:
+    sys.exit(f"gpu-campaign: part(s) {', '.join(bad)} missing or damaged: stage them first "
+             "(one call each, within the machine's idle release)")
+EOF
+  if [ ! -f "$SITE/.complete" ]; then
+    names=$("$PY" -c 'import json,sys; print(" ".join(p["name"] for p in json.load(open(sys.argv[1]))["parts"]))' .gpu-pack/carry/MANIFEST.json)
+    (cd "$STAGE/parts" && cat $names) | xz -dc | tar -x -C "$STAGE" || exit 1
+    log "unpacked $(du -sh "$STAGE" | cut -f1)"
+  fi
+  export PYTHONPATH="$SITE:$PWD${PYTHONPATH:+:$PYTHONPATH}"
+  export WARP_CACHE_PATH="$STAGE/kcache"
+  # The config's data_dir, .gpu-pack/data, is the unpacked data (here already, where packed).
+  mkdir -p .gpu-pack
+  { [ -d .gpu-pack/data ] && [ ! -L .gpu-pack/data ]; } || ln -sfn "$STAGE/data" .gpu-pack/data
+fi
+steps=()
+[ -z "${GPU_CAMPAIGN_STEPS:-}" ] || steps=(--steps "$GPU_CAMPAIGN_STEPS")
+export PYTHONUNBUFFERED=1
+command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,memory.total --format=csv,noheader | tee -a "$OUT/chunk.log"
+
+# Train until the deadline less the reserve: --minutes counts a resumed run's earlier chunks.
+budget=$(( DEADLINE - RESERVE - ($(date +%s) - start) ))
+[ $budget -gt 60 ] || { log "only ${budget} s left for training: nothing run"; exit 1; }
+if [ -f "$RUN/checkpoints/last.pt" ]; then
+  before=$("$PY" -c 'import csv,sys; r=list(csv.DictReader(open(sys.argv[1]))); print(float(r[-1]["wall_time_s"]) if r else 0)' "$RUN/metrics.csv")
+  minutes=$("$PY" -c "print(round(($before + $budget) / 60, 2))")
+  log "resuming $RUN (trained $before s) until $minutes min"
+  timeout -s INT $(( budget + 60 )) "$PY" -m trainer.cli run --resume "$RUN" --minutes "$minutes" "${steps[@]}" 2>&1 | tr '\r' '\n' | grep --line-buffered -v '%|' | tee -a "$OUT/chunk.log"; status=${PIPESTATUS[0]}
+else
+  config="$CONFIG"
+  if [ -n "${GPU_CAMPAIGN_OVERRIDE:-}" ]; then
+    config="$STAGE/campaign-override.toml"
+    "$PY" - "$CONFIG" "$config" <<'EOF' || exit 1
+import os, sys, tomllib
+from pathlib import Path
+# The override's keys replace the campaign's (a TOML table may not be defined twice).
+base = tomllib.loads(Path(sys.argv[1]).read_text())
+for key, value in tomllib.loads(os.environ["GPU_CAMPAIGN_OVERRIDE"]).items():
+    base[key] = {**base.get(key, {}), **value} if isinstance(value, dict) else value
+def fmt(v):
+    if isinstance(v, bool): return "true" if v else "false"
+    if isinstance(v, str): return '"' + v + '"'
+    if isinstance(v, list): return "[" + ", ".join(fmt(x) for x in v) + "]"
+    return repr(v)
+lines = [f"{k} = {fmt(v)}" for k, v in base.items() if not isinstance(v, dict)]
+for k, v in base.items():
+    if isinstance(v, dict):
+        lines += [f"[{k}]"] + [f"{kk} = {fmt(vv)}" for kk, vv in v.items()]
+Path(sys.argv[2]).write_text("\n".join(lines) + "\n")
+EOF
+  fi
+  minutes=$("$PY" -c "print(round($budget / 60, 2))")
+  log "starting $RUN from $config for $minutes min"
+  timeout -s INT $(( budget + 60 )) "$PY" -m trainer.cli run --config "$config" --run-dir "$RUN" --minutes "$minutes" "${steps[@]}" 2>&1 | tr '\r' '\n' | grep --line-buffered -v '%|' | tee -a "$OUT/chunk.log"; status=${PIPESTATUS[0]}
+fi
+log "training ended (status $status)"
+[ -f "$RUN/checkpoints/last.pt" ] || { log "no checkpoint: nothing to bring back"; exit 1; }
+cp "$RUN/checkpoints/last.pt" "$RUN/metrics.csv" "$RUN/config.json" "$OUT/"
+
+# The deterministic policy on every object, within what is left of the deadline.
+left=$(( DEADLINE - ($(date +%s) - start) - 10 ))
+if [ $left -gt 20 ]; then
+  rm -rf "$RUN/eval"
+  timeout -s INT $left "$PY" -m trainer.cli eval "$RUN" --episodes-per-object "$EPISODES" 2>&1 | tr '\r' '\n' | grep -v '%|' | tail -20 | tee -a "$OUT/chunk.log"
+  [ -f "$RUN/eval/per_object.csv" ] && "$PY" - "$RUN/eval/per_object.csv" "$OUT/eval.json" <<'EOF'
+import csv, json, sys
+rows = list(csv.DictReader(open(sys.argv[1])))
+json.dump({r["object"]: {"episodes": int(r["episodes"]), "successes": int(r["successes"])}
+           for r in rows}, open(sys.argv[2], "w"), indent=1)
+EOF
+fi
+# Warp's compiled kernels, so the next chunk need not compile them (if small enough to return).
+if [ "$SITE" != none ] && [ -d "$WARP_CACHE_PATH" ]; then
+  tar -C "$WARP_CACHE_PATH" -cf - . | xz -T0 -3 -c > "$STAGE/kcache.tar.xz"
+  [ "$(stat -c %s "$STAGE/kcache.tar.xz")" -lt 16000000 ] && cp "$STAGE/kcache.tar.xz" "$OUT/"
+fi
+"$PY" - "$RUN/metrics.csv" "$OUT/chunk.json" "$start" <<'EOF'
+import csv, json, platform, sys, time
+rows = list(csv.DictReader(open(sys.argv[1])))
+last = rows[-1]
+device = "cpu"
+try:
+    import torch
+    device = torch.cuda.get_device_name(0) if torch.cuda.is_available() else "cpu"
+except Exception:
+    pass
+json.dump({
+    "date": time.strftime("%Y-%m-%d %H:%M", time.gmtime()), "device": device,
+    "python": platform.python_version(), "iteration": int(last["iteration"]),
+    "env_steps": int(last["env_steps"]), "train_wall_s": round(float(last["wall_time_s"]), 1),
+    "fps_last": round(float(last["fps"])), "object_success_rate": last.get("object_success_rate", ""),
+    "command_s": round(time.time() - float(sys.argv[3])),
+}, open(sys.argv[2], "w"), indent=1)
+EOF
+log "done: $(ls "$OUT" | tr '\n' ' ')"

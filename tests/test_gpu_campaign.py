@@ -1,0 +1,103 @@
+"""The GPU campaign (scripts/gpu_campaign.py, scripts/gpu-campaign.sh): its config is the paper's,
+and its device side trains a chunk, brings the files back, and the next chunk continues the run,
+here on the CPU with a tiny override (the GPU runs the same script on the packed libraries)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+import torch
+
+from geomprep.config import Config
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_campaign_config_is_the_papers() -> None:
+    """Every setting of configs/paper.toml holds in the campaign's config, which only adds what
+    runs where (objects, representation, backend, data, checkpoints)."""
+    paper = tomllib.loads((ROOT / "configs" / "paper.toml").read_text())
+    campaign = tomllib.loads((ROOT / "results/gpu-table1-campaign/campaign.toml").read_text())
+    for key, value in paper.items():
+        if isinstance(value, dict):
+            for inner, setting in value.items():
+                assert campaign[key][inner] == setting, f"[{key}] {inner}"
+        else:
+            assert campaign[key] == value, key
+    assert campaign["backend"] == "warp" and campaign["device"] == "cuda"
+    assert campaign["representation"] == "bbox"
+    assert len(campaign["objects"].split(",")) == 10
+
+
+@pytest.mark.slow
+def test_two_chunks_continue_one_run(builtin_data: Config, tmp_path: Path) -> None:
+    """Chunk 1 starts the run and brings back checkpoint, metrics, config, eval and a summary;
+    ``collect`` files them under results; chunk 2 resumes from the collected checkpoint and its
+    metrics continue the same run (iterations 1-2, then 3-4)."""
+    override = f"""
+objects = "builtin_dice,builtin_box"
+backend = "cpu"
+device = "cpu"
+data_dir = "{builtin_data.data_dir}"
+num_envs = 4
+max_steps = 10
+compile = false
+[physics]
+noslip_iterations = 0
+[ppo]
+frames_per_env = 4
+minibatches = 1
+min_minibatch = 1
+epochs = 1
+hidden = [16, 16]
+[run]
+checkpoint_every = 1
+"""
+    results = tmp_path / "campaign"
+    run_dir = results / "run"
+    env = dict(os.environ, GPU_CAMPAIGN_STAGE=str(tmp_path / "stage"), GPU_CAMPAIGN_SITE="none",
+               GPU_CAMPAIGN_PYTHON=sys.executable, GPU_CAMPAIGN_RUN=str(run_dir),
+               GPU_CAMPAIGN_OVERRIDE=override, GPU_CAMPAIGN_EPISODES="1",
+               GPU_CAMPAIGN_DEADLINE="400")
+
+    def chunk(steps: int, out: Path) -> dict:
+        out.mkdir()
+        done = subprocess.run(
+            ["bash", "scripts/gpu-campaign.sh", "run"], cwd=ROOT, capture_output=True,
+            text=True, env=dict(env, OUT=str(out), GPU_CAMPAIGN_STEPS=str(steps)), timeout=300,
+        )
+        assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+        assert {"last.pt", "metrics.csv", "config.json", "chunk.json", "eval.json",
+                "chunk.log"} <= {p.name for p in out.iterdir()}
+        subprocess.run(
+            [sys.executable, "scripts/gpu_campaign.py", "collect", str(out), "--results",
+             str(results)], cwd=ROOT, check=True, capture_output=True,
+        )
+        # Between chunks only what was collected stays (a fresh machine, a fresh tree).
+        for name in ("tb", "eval"):
+            subprocess.run(["rm", "-rf", str(run_dir / name)], check=True)
+        for stale in (run_dir / "checkpoints").glob("iter_*.pt"):
+            stale.unlink()
+        return json.loads((out / "chunk.json").read_text())
+
+    first = chunk(32, tmp_path / "out1")  # 4 envs x 4 frames x 2 iterations
+    assert first["iteration"] == 2 and first["env_steps"] == 32
+    assert json.loads((tmp_path / "out1" / "eval.json").read_text()).keys() == {
+        "builtin_dice", "builtin_box"}
+    saved = torch.load(run_dir / "checkpoints" / "last.pt", weights_only=False)
+    assert saved["iteration"] == 2
+    second = chunk(64, tmp_path / "out2")
+    assert second["iteration"] == 4 and second["env_steps"] == 64
+    rows = list(csv.DictReader((run_dir / "metrics.csv").read_text().splitlines()))
+    assert [int(r["iteration"]) for r in rows] == [1, 2, 3, 4]
+    assert json.loads((run_dir / "config.json").read_text())["env"]["num_envs"] == 4
+    chunks = list(csv.DictReader((results / "chunks.csv").read_text().splitlines()))
+    assert [int(c["iteration"]) for c in chunks] == [2, 4]
+    assert (results / "eval-iter0004.json").is_file()
