@@ -255,17 +255,39 @@ def collect(args: argparse.Namespace) -> None:
 
 # --- check --------------------------------------------------------------------------------
 def check(args: argparse.Namespace) -> None:
-    """The device side on this machine: a copy of the repository, the parts staged one per
-    'call', then ``gpu-campaign.sh run`` with a small config override, into a local OUT."""
+    """The device side on this machine: the parts staged one per 'call' into a scratch folder,
+    then ``gpu-campaign.sh run`` on them (the unpacked data, a scratch run folder) with
+    ``--python`` (an interpreter like the GPU's: Python 3.12 with torch) and ``CHECK_OVERRIDE``
+    (the CPU backend, 10 envs, 2 iterations), into a local OUT."""
     work = Path(tempfile.mkdtemp(prefix="gpu-campaign-check-"))
+    override = CHECK_OVERRIDE.format(data=work / "stage" / "data")
     env = dict(os.environ, GPU_CAMPAIGN_STAGE=str(work / "stage"), OUT=str(work / "out"),
-               GPU_CAMPAIGN_PYTHON=args.python, GPU_CAMPAIGN_OVERRIDE=args.override)
+               GPU_CAMPAIGN_PYTHON=args.python, GPU_CAMPAIGN_OVERRIDE=override,
+               GPU_CAMPAIGN_RUN=str(work / "run"), GPU_CAMPAIGN_STEPS="80",
+               GPU_CAMPAIGN_EPISODES="1")
+    env.pop("PYTHONPATH", None)
     (work / "out").mkdir()
+    start = time.time()
     for part in json.loads((CARRY / "MANIFEST.json").read_text())["parts"][:-1]:
         run(["bash", "scripts/gpu-campaign.sh", "stage", f".gpu-pack/carry/{part['name']}"],
             cwd=ROOT, env=env)
     run(["bash", "scripts/gpu-campaign.sh", "run"], cwd=ROOT, env=env)
-    print(f"out: {work / 'out'}")
+    print(f"checked in {time.time() - start:.0f} s; out: {work / 'out'}")
+    print((work / "out" / "chunk.json").read_text())
+
+
+CHECK_OVERRIDE = """
+backend = "cpu"
+device = "cpu"
+data_dir = "{data}"
+num_envs = 10
+max_steps = 20
+[ppo]
+frames_per_env = 4
+minibatches = 1
+min_minibatch = 1
+epochs = 1
+"""
 
 
 def main() -> None:
@@ -283,8 +305,8 @@ def main() -> None:
                    help="the campaign's results folder [results/gpu-table1-campaign]")
     p.set_defaults(func=collect)
     p = sub.add_parser("check", help="run the device side here, on the CPU")
-    p.add_argument("--python", default=sys.executable)
-    p.add_argument("--override", default="", help="TOML lines appended to the config")
+    p.add_argument("--python", default=sys.executable,
+                   help="a Python 3.12 with torch, as on the GPU machines")
     p.set_defaults(func=check)
     args = parser.parse_args()
     args.func(args)

@@ -303,13 +303,14 @@ def test_video_of_a_bin_frames_hand_bin_and_target(builtin_data: Config) -> None
     env = bin_env(builtin_data.data_dir, num_envs=2, seed=2)
     recorder = EnvRecorder(env, [0, 1], width=160, height=120)
     script = TopGrasp()
+    down = script.approach_steps + script.descend_steps  # the hand at its lowest, in the clutter
 
     def on_step(step: int) -> None:
         recorder.capture()
-        if step in (0, script.approach_steps + script.descend_steps, script.total_steps - 1):
+        if step in (0, down // 2, down):
             _assert_framed(recorder, where=step, visible=("hand", "bin"))
 
-    run_scripted_grasp(env, script, on_step)
+    run_scripted_grasp(env, script, on_step, steps=down + 1)
     before = env.state["target_slot"][0].item()
     for _ in range(30):  # new episodes until env 0 has another target
         env.reset()
