@@ -4,7 +4,10 @@
 #
 #   bash scripts/gpu-campaign.sh stage [PART...]   keep the carried part(s) for the next call
 #   bash scripts/gpu-campaign.sh run               unpack every part, train the campaign's next
-#                                                  chunk, evaluate it, put the files in $OUT
+#                                                  chunk, evaluate it, put the files in $OUT:
+#                                                  last.pt, chunk.tar (metrics.csv, config.json,
+#                                                  chunk.json, eval.json), chunk.log and the
+#                                                  kernel cache (kcache.tar.xz.0, .1, ...)
 #
 # A chunk trains until GPU_CAMPAIGN_DEADLINE seconds (default 560) after this command started,
 # less GPU_CAMPAIGN_RESERVE (default 120) for the evaluation and the copies, then stops with a
@@ -123,11 +126,6 @@ json.dump({r["object"]: {"episodes": int(r["episodes"]), "successes": int(r["suc
            for r in rows}, open(sys.argv[2], "w"), indent=1)
 EOF
 fi
-# Warp's compiled kernels, so the next chunk need not compile them (if small enough to return).
-if [ "$SITE" != none ] && [ -d "$WARP_CACHE_PATH" ]; then
-  tar -C "$WARP_CACHE_PATH" -cf - . | xz -T0 -3 -c > "$STAGE/kcache.tar.xz"
-  [ "$(stat -c %s "$STAGE/kcache.tar.xz")" -lt 16000000 ] && cp "$STAGE/kcache.tar.xz" "$OUT/"
-fi
 "$PY" - "$RUN/metrics.csv" "$OUT/chunk.json" "$start" <<'EOF'
 import csv, json, platform, sys, time
 rows = list(csv.DictReader(open(sys.argv[1])))
@@ -146,4 +144,20 @@ json.dump({
     "command_s": round(time.time() - float(sys.argv[3])),
 }, open(sys.argv[2], "w"), indent=1)
 EOF
+# A call returns at most 8 files: the small ones travel as one tar beside last.pt and the log.
+small=(metrics.csv config.json chunk.json)
+[ -f "$OUT/eval.json" ] && small+=(eval.json)
+tar -C "$OUT" -cf "$OUT/chunk.tar" "${small[@]}" && (cd "$OUT" && rm "${small[@]}")
+# Warp's compiled kernels, so that the next chunk need not compile them: in pieces of 15 MB,
+# if they fit beside the rest (64 MiB, 8 files).
+if [ -n "${WARP_CACHE_PATH:-}" ] && [ -n "$(ls -A "$WARP_CACHE_PATH" 2>/dev/null)" ]; then
+  tar -C "$WARP_CACHE_PATH" -cf - . | xz -T0 -3 -c > "$STAGE/kcache.tar.xz"
+  size=$(stat -c %s "$STAGE/kcache.tar.xz")
+  room=$(( 63 * 1048576 - $(du -cb "$OUT"/* | tail -1 | cut -f1) ))
+  if [ "$size" -le "$room" ] && [ "$size" -le 75000000 ]; then
+    split -b 15000000 -d -a 1 "$STAGE/kcache.tar.xz" "$OUT/kcache.tar.xz."
+  else
+    log "kernel cache of $size bytes left behind (room for $room)"
+  fi
+fi
 log "done: $(ls "$OUT" | tr '\n' ' ')"

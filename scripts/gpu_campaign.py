@@ -219,29 +219,38 @@ def git_head() -> str:
 def collect(args: argparse.Namespace) -> None:
     """Bring a chunk's files home: the run's checkpoint, config and metrics into ``run/``, the
     evaluation and the chunk's log beside them, one row in chunks.csv; the kernel cache into
-    ``.gpu-pack/`` for the next pack."""
+    ``.gpu-pack/kcache/`` for the next pack."""
     got = Path(args.files)
-    campaign = args.results
+    campaign, pack_dir = args.results, args.pack_dir
     run = campaign / "run"
-    need = ["last.pt", "metrics.csv", "config.json", "chunk.json"]
-    missing = [n for n in need if not (got / n).is_file()]
+    missing = [n for n in ("last.pt", "chunk.tar") if not (got / n).is_file()]
     if missing:
         raise SystemExit(f"gpu_campaign: {got} lacks {', '.join(missing)}: the chunk did not "
-                         "finish; its log (chunk.log) says why")
-    (run / "checkpoints").mkdir(parents=True, exist_ok=True)
-    shutil.copy(got / "last.pt", run / "checkpoints" / "last.pt")
-    for name in ("metrics.csv", "config.json"):
-        shutil.copy(got / name, run / name)
-    chunk = json.loads((got / "chunk.json").read_text())
-    if (got / "eval.json").is_file():
-        shutil.copy(got / "eval.json", campaign / f"eval-iter{chunk['iteration']:04d}.json")
+                         "finish; its log (chunk.log, or the call's output) says why")
+    with tempfile.TemporaryDirectory() as scratch:
+        with tarfile.open(got / "chunk.tar") as tar:
+            tar.extractall(scratch, filter="data")
+        small = Path(scratch)
+        chunk = json.loads((small / "chunk.json").read_text())
+        (run / "checkpoints").mkdir(parents=True, exist_ok=True)
+        shutil.copy(got / "last.pt", run / "checkpoints" / "last.pt")
+        for name in ("metrics.csv", "config.json"):
+            shutil.copy(small / name, run / name)
+        if (small / "eval.json").is_file():
+            shutil.copy(small / "eval.json", campaign / f"eval-iter{chunk['iteration']:04d}.json")
     if (got / "chunk.log").is_file():
         shutil.copy(got / "chunk.log", campaign / f"chunk-iter{chunk['iteration']:04d}.log")
-    if (got / "kcache.tar.xz").is_file():
-        shutil.rmtree(PACK / "kcache", ignore_errors=True)
-        (PACK / "kcache").mkdir(parents=True)
-        with tarfile.open(got / "kcache.tar.xz") as tar:
-            tar.extractall(PACK / "kcache", filter="data")
+    pieces = sorted(got.glob("kcache.tar.xz.*"))
+    if pieces:
+        shutil.rmtree(pack_dir / "kcache", ignore_errors=True)
+        (pack_dir / "kcache").mkdir(parents=True)
+        whole = pack_dir / "kcache.tar.xz"
+        with open(whole, "wb") as out:
+            for piece in pieces:
+                out.write(piece.read_bytes())
+        with tarfile.open(whole) as tar:
+            tar.extractall(pack_dir / "kcache", filter="data")
+        whole.unlink()
     rows = campaign / "chunks.csv"
     new = not rows.is_file()
     with open(rows, "a", newline="") as handle:
@@ -250,7 +259,8 @@ def collect(args: argparse.Namespace) -> None:
             writer.writeheader()
         writer.writerow(chunk)
     print(f"collected iteration {chunk['iteration']} ({chunk['env_steps']:,} env steps) into "
-          f"{run}; commit it")
+          f"{run}{'; the kernel cache into ' + str(pack_dir / 'kcache') if pieces else ''}: "
+          "commit the results")
 
 
 # --- check --------------------------------------------------------------------------------
@@ -273,7 +283,8 @@ def check(args: argparse.Namespace) -> None:
             cwd=ROOT, env=env)
     run(["bash", "scripts/gpu-campaign.sh", "run"], cwd=ROOT, env=env)
     print(f"checked in {time.time() - start:.0f} s; out: {work / 'out'}")
-    print((work / "out" / "chunk.json").read_text())
+    with tarfile.open(work / "out" / "chunk.tar") as tar:
+        print(tar.extractfile("chunk.json").read().decode())
 
 
 CHECK_OVERRIDE = """
@@ -303,6 +314,8 @@ def main() -> None:
     p.add_argument("files", help="the files_at folder of the chunk's device call")
     p.add_argument("--results", type=Path, default=CAMPAIGN,
                    help="the campaign's results folder [results/gpu-table1-campaign]")
+    p.add_argument("--pack-dir", type=Path, default=PACK,
+                   help="where the kernel cache goes for the next pack [.gpu-pack]")
     p.set_defaults(func=collect)
     p = sub.add_parser("check", help="run the device side here, on the CPU")
     p.add_argument("--python", default=sys.executable,

@@ -62,10 +62,15 @@ checkpoint_every = 1
 """
     results = tmp_path / "campaign"
     run_dir = results / "run"
+    # A kernel cache as Warp would leave it: returned in 15 MB pieces, reassembled by collect.
+    kernels = tmp_path / "kernels"
+    (kernels / "1.19.0").mkdir(parents=True)
+    blob = os.urandom(16_000_000)  # incompressible: two pieces
+    (kernels / "1.19.0" / "module.cubin").write_bytes(blob)
     env = dict(os.environ, GPU_CAMPAIGN_STAGE=str(tmp_path / "stage"), GPU_CAMPAIGN_SITE="none",
                GPU_CAMPAIGN_PYTHON=sys.executable, GPU_CAMPAIGN_RUN=str(run_dir),
                GPU_CAMPAIGN_OVERRIDE=override, GPU_CAMPAIGN_EPISODES="1",
-               GPU_CAMPAIGN_DEADLINE="400")
+               GPU_CAMPAIGN_DEADLINE="400", WARP_CACHE_PATH=str(kernels))
 
     def chunk(steps: int, out: Path) -> dict:
         out.mkdir()
@@ -74,27 +79,32 @@ checkpoint_every = 1
             text=True, env=dict(env, OUT=str(out), GPU_CAMPAIGN_STEPS=str(steps)), timeout=300,
         )
         assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
-        assert {"last.pt", "metrics.csv", "config.json", "chunk.json", "eval.json",
-                "chunk.log"} <= {p.name for p in out.iterdir()}
+        returned = sorted(p.name for p in out.iterdir())
+        assert returned == ["chunk.log", "chunk.tar", "kcache.tar.xz.0", "kcache.tar.xz.1",
+                            "last.pt"]
+        assert all(p.stat().st_size <= 16 * 2**20 for p in out.iterdir())
         subprocess.run(
             [sys.executable, "scripts/gpu_campaign.py", "collect", str(out), "--results",
-             str(results)], cwd=ROOT, check=True, capture_output=True,
+             str(results), "--pack-dir", str(tmp_path / "pack")], cwd=ROOT, check=True,
+            capture_output=True,
         )
+        assert (tmp_path / "pack/kcache/1.19.0/module.cubin").read_bytes() == blob
         # Between chunks only what was collected stays (a fresh machine, a fresh tree).
         for name in ("tb", "eval"):
             subprocess.run(["rm", "-rf", str(run_dir / name)], check=True)
         for stale in (run_dir / "checkpoints").glob("iter_*.pt"):
             stale.unlink()
-        return json.loads((out / "chunk.json").read_text())
+        return next(csv.DictReader((results / "chunks.csv").read_text().splitlines()[:1]
+                                   + (results / "chunks.csv").read_text().splitlines()[-1:]))
 
     first = chunk(32, tmp_path / "out1")  # 4 envs x 4 frames x 2 iterations
-    assert first["iteration"] == 2 and first["env_steps"] == 32
-    assert json.loads((tmp_path / "out1" / "eval.json").read_text()).keys() == {
+    assert int(first["iteration"]) == 2 and int(first["env_steps"]) == 32
+    assert json.loads((results / "eval-iter0002.json").read_text()).keys() == {
         "builtin_dice", "builtin_box"}
     saved = torch.load(run_dir / "checkpoints" / "last.pt", weights_only=False)
     assert saved["iteration"] == 2
     second = chunk(64, tmp_path / "out2")
-    assert second["iteration"] == 4 and second["env_steps"] == 64
+    assert int(second["iteration"]) == 4 and int(second["env_steps"]) == 64
     rows = list(csv.DictReader((run_dir / "metrics.csv").read_text().splitlines()))
     assert [int(r["iteration"]) for r in rows] == [1, 2, 3, 4]
     assert json.loads((run_dir / "config.json").read_text())["env"]["num_envs"] == 4
