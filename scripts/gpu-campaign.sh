@@ -19,7 +19,8 @@
 # interpreter's own packages, no parts), GPU_CAMPAIGN_RUN (the run folder),
 # GPU_CAMPAIGN_OVERRIDE (TOML whose keys replace the campaign config's in a new run),
 # GPU_CAMPAIGN_STEPS (trainer run --steps: the run's total env steps after this chunk),
-# GPU_CAMPAIGN_EPISODES (eval episodes per object, default 20).
+# GPU_CAMPAIGN_EPISODES (eval episodes per object, default 20; 0: no eval), GPU_CAMPAIGN_PIECE
+# (bytes per returned piece of the kernel cache, default 15,000,000).
 set -uo pipefail
 start=$(date +%s)
 STAGE=${GPU_CAMPAIGN_STAGE:-/tmp/gpu-campaign}
@@ -30,6 +31,7 @@ CONFIG=results/gpu-table1-campaign/campaign.toml
 DEADLINE=${GPU_CAMPAIGN_DEADLINE:-560}
 RESERVE=${GPU_CAMPAIGN_RESERVE:-120}
 EPISODES=${GPU_CAMPAIGN_EPISODES:-20}
+PIECE=${GPU_CAMPAIGN_PIECE:-15000000}
 : "${OUT:?OUT must name the folder the files go to}"
 mkdir -p "$STAGE/parts" "$OUT"
 log() { echo "gpu-campaign [$(( $(date +%s) - start )) s] $*" | tee -a "$OUT/chunk.log"; }
@@ -116,7 +118,7 @@ cp "$RUN/checkpoints/last.pt" "$RUN/metrics.csv" "$RUN/config.json" "$OUT/"
 
 # The deterministic policy on every object, within what is left of the deadline.
 left=$(( DEADLINE - ($(date +%s) - start) - 10 ))
-if [ $left -gt 20 ]; then
+if [ $left -gt 20 ] && [ "$EPISODES" -gt 0 ]; then
   rm -rf "$RUN/eval"
   timeout -s INT $left "$PY" -m trainer.cli eval "$RUN" --episodes-per-object "$EPISODES" 2>&1 | tr '\r' '\n' | grep -v '%|' | tail -20 | tee -a "$OUT/chunk.log"
   [ -f "$RUN/eval/per_object.csv" ] && "$PY" - "$RUN/eval/per_object.csv" "$OUT/eval.json" <<'EOF'
@@ -154,8 +156,8 @@ if [ -n "${WARP_CACHE_PATH:-}" ] && [ -n "$(ls -A "$WARP_CACHE_PATH" 2>/dev/null
   tar -C "$WARP_CACHE_PATH" -cf - . | xz -T0 -3 -c > "$STAGE/kcache.tar.xz"
   size=$(stat -c %s "$STAGE/kcache.tar.xz")
   room=$(( 63 * 1048576 - $(du -cb "$OUT"/* | tail -1 | cut -f1) ))
-  if [ "$size" -le "$room" ] && [ "$size" -le 75000000 ]; then
-    split -b 15000000 -d -a 1 "$STAGE/kcache.tar.xz" "$OUT/kcache.tar.xz."
+  if [ "$size" -le "$room" ] && [ "$size" -le $(( 5 * PIECE )) ]; then
+    split -b "$PIECE" -d -a 1 "$STAGE/kcache.tar.xz" "$OUT/kcache.tar.xz."
   else
     log "kernel cache of $size bytes left behind (room for $room)"
   fi
