@@ -35,6 +35,7 @@ have_lib 'libEGL_mesa.so.0' || missing+=(libegl-mesa0)
 have_lib 'libgomp.so.1' || missing+=(libgomp1)
 command -v cc >/dev/null || missing+=(gcc)
 command -v g++ >/dev/null || missing+=(g++)
+command -v xz >/dev/null || missing+=(xz-utils)  # the GPU campaign's packs (scripts/gpu_campaign.py)
 "$PYTHON" - <<'EOF' || missing+=(python3-dev)
 import os, sys, sysconfig
 sys.exit(not os.path.isfile(os.path.join(sysconfig.get_paths()["include"], "Python.h")))
