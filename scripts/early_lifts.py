@@ -13,7 +13,7 @@ import warnings
 
 import torch
 
-from geomgrasp.rotations import quat_to_matrix
+from geomgrasp.rotations import matrix_to_axis_angle, quat_to_matrix
 
 HOME_ACTION = (0.0,) * 6 + (1.0, -1.0, -1.0, -1.0, -1.0)  # configs/cpu.toml's init_action_mean
 STD = 0.6
@@ -22,8 +22,7 @@ STD = 0.6
 def tilt_degrees(before: torch.Tensor, after: torch.Tensor) -> torch.Tensor:
     """(n,) angle (degrees) between orientations ``before`` and ``after`` (n, 4) (w, x, y, z)."""
     relative = quat_to_matrix(before).transpose(-1, -2) @ quat_to_matrix(after)
-    cos = ((relative.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2).clamp(-1, 1)
-    return torch.rad2deg(torch.acos(cos))
+    return torch.rad2deg(matrix_to_axis_angle(relative).norm(dim=-1))
 
 
 def early_lifts(obj: str, data_dir: str, envs: int, steps: int, h_bar: float,

@@ -80,11 +80,17 @@ command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,memory.total --f
 # Train until the deadline less the reserve: --minutes counts a resumed run's earlier chunks.
 budget=$(( DEADLINE - RESERVE - ($(date +%s) - start) ))
 [ $budget -gt 60 ] || { log "only ${budget} s left for training: nothing run"; exit 1; }
+# trainer run with ARGS until $minutes (the log without its progress bar); sets $status.
+train() {
+  timeout -s INT $(( budget + 60 )) "$PY" -m trainer.cli run "$@" --minutes "$minutes" "${steps[@]}" 2>&1 |
+    tr '\r' '\n' | grep --line-buffered -v '%|' | tee -a "$OUT/chunk.log"
+  status=${PIPESTATUS[0]}
+}
 if [ -f "$RUN/checkpoints/last.pt" ]; then
   before=$("$PY" -c 'import csv,sys; r=list(csv.DictReader(open(sys.argv[1]))); print(float(r[-1]["wall_time_s"]) if r else 0)' "$RUN/metrics.csv")
   minutes=$("$PY" -c "print(round(($before + $budget) / 60, 2))")
   log "resuming $RUN (trained $before s) until $minutes min"
-  timeout -s INT $(( budget + 60 )) "$PY" -m trainer.cli run --resume "$RUN" --minutes "$minutes" "${steps[@]}" 2>&1 | tr '\r' '\n' | grep --line-buffered -v '%|' | tee -a "$OUT/chunk.log"; status=${PIPESTATUS[0]}
+  train --resume "$RUN"
 else
   config="$CONFIG"
   if [ -n "${GPU_CAMPAIGN_OVERRIDE:-}" ]; then
@@ -110,7 +116,7 @@ EOF
   fi
   minutes=$("$PY" -c "print(round($budget / 60, 2))")
   log "starting $RUN from $config for $minutes min"
-  timeout -s INT $(( budget + 60 )) "$PY" -m trainer.cli run --config "$config" --run-dir "$RUN" --minutes "$minutes" "${steps[@]}" 2>&1 | tr '\r' '\n' | grep --line-buffered -v '%|' | tee -a "$OUT/chunk.log"; status=${PIPESTATUS[0]}
+  train --config "$config" --run-dir "$RUN"
 fi
 log "training ended (status $status)"
 [ -f "$RUN/checkpoints/last.pt" ] || { log "no checkpoint: nothing to bring back"; exit 1; }

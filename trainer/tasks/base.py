@@ -224,10 +224,14 @@ class GraspTask(EnvBase):
         self.home_qpos = torch.stack([h.qpos for h in homes])
         self.home_ctrl = torch.stack([h.ctrl for h in homes])
         self.home_keypoint = torch.stack([h.keypoint for h in homes])
-        self.home_height = self.home_keypoint[:, 2].clone()
         self.home_rot = homes[0].rot
         self.home_index = torch.as_tensor(index, device=self.device)
         self._warn_home_contact(touched)
+
+    @property
+    def home_height(self) -> torch.Tensor:
+        """(H,) the palm's height above the table in each home (m)."""
+        return self.home_keypoint[:, 2]
 
     def _hand_touches(
         self, layout: int, home_qpos: torch.Tensor, states: np.ndarray
