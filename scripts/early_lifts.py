@@ -4,6 +4,10 @@ held success, how far the target turned and rose from its reset pose. A lift til
 tipped object turns a lot and barely rises (results/cpu-perobject-2026-11-26/, the airplane).
 
     python scripts/early_lifts.py OBJECT DATA_DIR [--envs 256] [--steps 150] [--h-bar 0.03]
+        [--lift-clearance 0.01]
+
+``--lift-clearance`` counts a success only once the object's lowest point has also risen that
+far (``[reward] lift_clearance``): what that leaves of the untrained policy's "lifts".
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ def tilt_degrees(before: torch.Tensor, after: torch.Tensor) -> torch.Tensor:
 
 
 def early_lifts(obj: str, data_dir: str, envs: int, steps: int, h_bar: float,
-                seed: int = 0) -> list[tuple[int, float, float]]:
+                seed: int = 0, lift_clearance: float = 0.0) -> list[tuple[int, float, float]]:
     """(step, tilt (deg), rise (m)) of each episode's first held success."""
     from tensordict import TensorDict
 
@@ -35,7 +39,8 @@ def early_lifts(obj: str, data_dir: str, envs: int, steps: int, h_bar: float,
 
     cfg = load_env_config(num_envs=envs, objects=obj, representation="bbox", data_dir=data_dir,
                           nthread=1, max_steps=steps,
-                          robot={"home_hand_height": 0.14, "home_above_objects": True})
+                          robot={"home_hand_height": 0.14, "home_above_objects": True},
+                          reward={"lift_clearance": lift_clearance})
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         env = make_env(cfg, seed=seed)
@@ -70,9 +75,12 @@ def main() -> None:
     parser.add_argument("--envs", type=int, default=256)
     parser.add_argument("--steps", type=int, default=150)
     parser.add_argument("--h-bar", type=float, default=0.03)
+    parser.add_argument("--lift-clearance", type=float, default=0.0)
     args = parser.parse_args()
-    events = early_lifts(args.object, args.data_dir, args.envs, args.steps, args.h_bar)
-    print(f"held successes at {args.h_bar} m in {args.steps} steps x {args.envs} envs: "
+    events = early_lifts(args.object, args.data_dir, args.envs, args.steps, args.h_bar,
+                         lift_clearance=args.lift_clearance)
+    print(f"held successes at {args.h_bar} m (lift_clearance {args.lift_clearance:g} m) in "
+          f"{args.steps} steps x {args.envs} envs: "
           f"{len(events)}")
     if events:
         tilts = sorted(e[1] for e in events)

@@ -401,3 +401,62 @@ def test_a_hand_that_starts_in_the_object_is_reported(builtin_data: Config) -> N
     assert ((palm[:, None] - env.home_height).abs().min(1).values < 2e-3).all()
     torch.testing.assert_close(env.state["palm_pos"][:, 2], palm, atol=2e-3, rtol=0)
     env.close()
+
+
+def test_lift_clearance_counts_a_lift_not_a_tip(builtin_data: Config) -> None:
+    """``reward.lift_clearance``: a settled box's lowest surface sample is on the table top
+    (z = 0) and is the episode's ``start_low``; tipped 40 degrees about its lowest edge the box's
+    centre rises past a 1 cm target but its lowest point does not: no success. Raised 5 cm
+    upright, it succeeds. Without the option the tip succeeds (the paper's centre rise)."""
+    from geomgrasp.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix
+
+    def build(clearance: float) -> GraspTask:
+        cfg = load_env_config(num_envs=2, objects="builtin_box", representation="bbox",
+                              data_dir=builtin_data.data_dir,
+                              reward={"lift_clearance": clearance, "hold_tips": 0},
+                              robot={"home_above_objects": True})
+        env = make_env(cfg, seed=0)
+        env.reset()
+        env.set_lift_target(0.01)
+        return env
+
+    def place(env: GraspTask, tip: bool) -> torch.Tensor:
+        """Env 0's box tipped (or raised 5 cm) from its reset pose; env 1 left as it is.
+        Returns env 0's centre rise (m)."""
+        qpos = env.backend.qpos.clone()
+        pose_index = env.slot_qpos[env.state["target_slot"][0]]  # (7,)
+        pos, quat = qpos[0, pose_index[:3]], qpos[0, pose_index[3:]]
+        rot = quat_to_matrix(quat[None])[0]
+        if tip:
+            points = env.objects.points[0] @ rot.T + pos  # (512, 3) in the world
+            bottom = points[points[:, 2] < points[:, 2].min() + 0.002]
+            pivot = bottom[(bottom[:, :2] - pos[:2]).norm(dim=-1).argmax()]  # on an edge
+            axis = torch.linalg.cross(torch.tensor([0.0, 0.0, 1.0]), pivot - pos)
+            axis[2] = 0.0
+            spin = axis_angle_to_matrix((axis / axis.norm() * -0.7)[None])[0]  # 40 degrees
+            new_pos, new_rot = pivot + spin @ (pos - pivot), spin @ rot
+            if new_pos[2] < pos[2]:  # the other way round lifts the centre
+                spin = spin.T
+                new_pos, new_rot = pivot + spin @ (pos - pivot), spin @ rot
+        else:
+            new_pos, new_rot = pos + torch.tensor([0.0, 0.0, 0.05]), rot
+        qpos[0, pose_index[:3]] = new_pos
+        qpos[0, pose_index[3:]] = matrix_to_quat(new_rot[None])[0]
+        env.backend.set_state(torch.arange(2), qpos, torch.zeros_like(env.backend.qvel),
+                              env.state["ctrl"])
+        return new_pos[2] - pos[2]
+
+    env = build(0.01)
+    pos, quat = env.target_pose()
+    low = env.lowest_point(pos, quat, env.target_objects())
+    torch.testing.assert_close(env.state["start_low"], low)
+    assert low.abs().max() < 0.003  # settled on the table top
+    assert place(env, tip=True) > 0.01
+    assert not bool(env._observe(reset=False)["success"].any())  # a tip is not a lift
+    place(env, tip=False)
+    assert env._observe(reset=False)["success"][:, 0].tolist() == [True, False]
+    env.close()
+    plain = build(0.0)
+    assert place(plain, tip=True) > 0.01
+    assert plain._observe(reset=False)["success"][:, 0].tolist() == [True, False]
+    plain.close()

@@ -309,12 +309,16 @@ def test_eval_of_a_chosen_checkpoint_and_success_criterion(
                         capsys)
     assert code == 0 and "while held" in out
     assert "the last checkpoint" in (run.path / "eval" / "table.md").read_text()
+    code, out, _ = main(["eval", str(run.path), "--episodes-per-object", "1",
+                         "--lift-clearance", "0.01", "--out", "eval-clear"], monkeypatch, capsys)
+    assert code == 0 and "lifted by 0.2 m (its lowest point by 0.01 m) while held" in out
     for argv, expected in [
         (["--iteration", "7"], f"error: {run.path}: no checkpoint of iteration 7 (it has "
                                "iterations 2, 3)"),
         (["--iteration", "0"], "error: --iteration 0: must be >= 1"),
         (["--hold-tips", "9"], "error: hold_tips = 9: must be >= 0 and <= 5"),
         (["--h-bar", "0"], "error: h_bar = 0"),
+        (["--lift-clearance", "-0.01"], "error: lift_clearance = -0.01: must be >= 0"),
         (["--out", "../elsewhere"], "error: out '../elsewhere': give a folder name"),
     ]:
         code, _, err = main(["eval", str(run.path), *argv], monkeypatch, capsys)

@@ -505,6 +505,9 @@ def _resume(run_dir: Path, steps: int | None, minutes: float | None) -> None:
               "any rise) [the run's reward.hold_tips].")
 @click.option("--h-bar", type=float, default=None,
               help="Success: lifted by this many metres [the run's reward.h_bar, 0.2].")
+@click.option("--lift-clearance", type=float, default=None,
+              help="Success: the target's lowest surface point risen this many metres too (a "
+              "tip is not a lift) [the run's reward.lift_clearance, 0].")
 @click.option("--iteration", type=int, default=None,
               help="Evaluate the checkpoint of this training iteration [the last].")
 @click.option("--sample", is_flag=True,
@@ -519,8 +522,8 @@ def _resume(run_dir: Path, steps: int | None, minutes: float | None) -> None:
 @click.option("--device", default=None, help="Torch device [the run's].")
 def eval_cmd(
     run_dir: Path, episodes_per_object: int, objects: str | None, max_rounds: int,
-    hold_tips: int | None, h_bar: float | None, iteration: int | None, sample: bool,
-    pads: bool, out: str | None, device: str | None,
+    hold_tips: int | None, h_bar: float | None, lift_clearance: float | None,
+    iteration: int | None, sample: bool, pads: bool, out: str | None, device: str | None,
 ) -> None:
     """Success per target object of the deterministic policy (eval/per_object.csv,
     eval/table.md), or with --sample of the policy as it acts in training.
@@ -539,7 +542,7 @@ def eval_cmd(
     result = evaluate(
         _run_dir(run_dir), episodes_per_object, objects, device=device, max_rounds=max_rounds,
         hold_tips=hold_tips, h_bar=h_bar, iteration=iteration, out=out, sample=sample,
-        pads=pads,
+        pads=pads, lift_clearance=lift_clearance,
     )
     sampled = " (actions sampled)" if sample else ""
     click.echo(f"{result.describe()}: success per target object{sampled}")

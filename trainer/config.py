@@ -218,6 +218,14 @@ class RewardConfig(_Checked):
     hold_distance: float = bounded(0.02, gt=0)
     """Fingertip pad to the target's surface (m, from its SDF) that counts as touching it for
     ``hold_tips``; the scripted grasps' lifts: 99 % have two pads within 2 cm."""
+    lift_clearance: float = bounded(0.0, ge=0)
+    """A lift counts (success, the bonus, the curriculum's rates) only once the target's lowest
+    surface point (over its 512 surface samples, ~5 mm apart on a Table I object) has also risen
+    this far (m) since the episode's start: tipping an elongated object raises its centre but
+    not its lowest point. Pushing a wing tips the toy airplane 3 cm at its centre, the untrained
+    policy's "lifts" (results/cpu-perobject-2026-11-26/). 0 (the default, the paper): the
+    centre's rise alone. Near no-op at the task's 0.2 m (a held Table I object is then off the
+    table); it changes the curriculum's low targets."""
     hold_from: float = bounded(0.0, ge=0)
     """Training only: the hold condition applies to lift targets of at least this height (m);
     at a lower curriculum target any rise succeeds. 0 (the default): always held. Tried at
@@ -236,6 +244,8 @@ class RewardConfig(_Checked):
     def success_text(self) -> str:
         """What a success is, in words (``trainer eval``'s outputs state it)."""
         lift = f"lifted by {self.h_bar:g} m"
+        if self.lift_clearance > 0:
+            lift += f" (its lowest point by {self.lift_clearance:g} m)"
         if self.hold_tips == 0:
             return f"{lift} (held or not)"
         return (f"{lift} while held ({self.hold_tips} or more fingertip pads within "

@@ -164,6 +164,7 @@ def evaluate(
     h_bar: float | None = None,
     sample: bool = False,
     pads: bool = False,
+    lift_clearance: float | None = None,
 ) -> EvalResult:
     """Evaluate the run's last checkpoint (or that of ``iteration``) on its object set (or
     ``objects``), on ``device`` (default: the run's), for the run's task; writes
@@ -175,10 +176,11 @@ def evaluate(
     ``pads``: also count, per object, the successes held by >= 2 fingertip pads within 2 cm of
     the target's surface at the success step (with ``hold_tips = 0``: which lifts are tosses).
 
-    Success is the run's (``reward.h_bar`` and ``reward.hold_tips`` of its config) unless
-    ``h_bar`` or ``hold_tips`` is given: e.g. ``hold_tips = 2`` evaluates a run trained on any
+    Success is the run's (``reward.h_bar``, ``hold_tips`` and ``lift_clearance`` of its
+    config) unless one of them is given: e.g. ``hold_tips = 2`` evaluates a run trained on any
     rise by held lifts only, ``h_bar = 0.05`` how often the targets are lifted by 5 cm (the
-    reward and the episode's end follow it, as in training at that curriculum target).
+    reward and the episode's end follow it, as in training at that curriculum target),
+    ``lift_clearance = 0.01`` how many of those lifts raised the lowest point 1 cm (not tips).
 
     Lift: exactly ``episodes_per_object`` episodes of each object. Bin: rounds of episodes on
     the run's bins (drawn from ``objects`` instead when given), balanced over the targets, until
@@ -196,6 +198,8 @@ def evaluate(
     reward = cfg.env.reward
     if hold_tips is not None:
         reward = dataclasses.replace(reward, hold_tips=hold_tips)
+    if lift_clearance is not None:
+        reward = dataclasses.replace(reward, lift_clearance=lift_clearance)
     if h_bar is not None:
         # One height: the curriculum's start and hold_from (training's) may not exceed it.
         reward = dataclasses.replace(

@@ -174,6 +174,10 @@ class GraspTask(EnvBase):
             batch_size=[E],
             device=self.device,
         )
+        if cfg.reward.lift_clearance > 0:
+            # The target's lowest surface point at the episode's start (E,), m: only with
+            # ``reward.lift_clearance``, so that runs without it keep their saved task state.
+            self.state["start_low"] = torch.zeros(E, device=self.device)
         # The lift target per object id (O,), m: cfg.reward.h_bar unless a curriculum lowers it.
         self.h_bar = torch.full(
             (len(self.objects.names),), cfg.reward.h_bar, device=self.device
@@ -324,6 +328,15 @@ class GraspTask(EnvBase):
         slot = self.state["target_slot"] if target_slot is None else target_slot
         return self.assignment.gather(1, slot[:, None])[:, 0]
 
+    def lowest_point(
+        self, obj_pos: torch.Tensor, obj_quat: torch.Tensor, object_id: torch.Tensor
+    ) -> torch.Tensor:
+        """(n,) m: the height of the lowest of each object's 512 surface samples, the object at
+        obj_pos (n, 3) with quaternion obj_quat (n, 4) (w, x, y, z); object_id (n,)."""
+        vertical = quat_to_matrix(obj_quat)[:, 2, :]  # (n, 3) the world z axis in the object frame
+        heights = torch.einsum("npk,nk->np", self.objects.points[object_id], vertical)
+        return heights.amin(-1) + obj_pos[:, 2]
+
     def target_pose(self, qpos: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """The target's position (E, 3) and quaternion (E, 4) in the world."""
         poses = self.slot_poses(self.backend.qpos if qpos is None else qpos)
@@ -338,8 +351,12 @@ class GraspTask(EnvBase):
         slots = slots.to(self.device)
         keep = slots < 0
         target = torch.where(keep, self.state["target_slot"], slots)
-        height = self.slot_poses(self.backend.qpos)[..., 2].gather(1, target[:, None])[:, 0]
-        self.state["start_height"] = torch.where(keep, self.state["start_height"], height)
+        pose = self.slot_poses(self.backend.qpos).gather(1, target[:, None, None].expand(-1, 1, 7))
+        pose = pose[:, 0]
+        self.state["start_height"] = torch.where(keep, self.state["start_height"], pose[:, 2])
+        if self.cfg.reward.lift_clearance > 0:
+            low = self.lowest_point(pose[:, :3], pose[:, 3:], self.target_objects(target))
+            self.state["start_low"] = torch.where(keep, self.state["start_low"], low)
         self.state["target_slot"] = target
         return self._observe(reset=True)
 
@@ -389,6 +406,10 @@ class GraspTask(EnvBase):
             batch_size=[n],
             device=self.device,
         )
+        if self.cfg.reward.lift_clearance > 0:
+            start = pose.gather(1, target_slot[:, None, None].expand(-1, 1, 7))[:, 0]
+            object_id = self.assignment[ids].gather(1, target_slot[:, None])[:, 0]
+            fresh["start_low"] = self.lowest_point(start[:, :3], start[:, 3:], object_id)
         self.state[ids] = fresh
         mocap = self.robot.mocap(fresh["target_pos"], fresh["target_rot"])
         self.backend.set_state(
@@ -456,7 +477,8 @@ class GraspTask(EnvBase):
         qpos = self.backend.qpos
         s = self.state
         obs, terms, flags, palm_pos = self._task_outputs(
-            qpos, s["start_height"], s["step_count"], s["target_slot"], self.h_bar
+            qpos, s["start_height"], s.get("start_low", s["start_height"]), s["step_count"],
+            s["target_slot"], self.h_bar,
         )
         s["palm_pos"] = palm_pos
         if self.cfg.observe_hand_targets:
@@ -500,6 +522,7 @@ class GraspTask(EnvBase):
         self,
         qpos: torch.Tensor,
         start_height: torch.Tensor,
+        start_low: torch.Tensor,
         step_count: torch.Tensor,
         target_slot: torch.Tensor,
         h_bars: torch.Tensor,
@@ -507,7 +530,9 @@ class GraspTask(EnvBase):
         """Everything the task computes from the simulated state, as a pure tensor function
         (``torch.compile`` fuses it when ``cfg.compile``): (observations, reward terms with
         their sum ``reward`` and ``lift_height``, (success, terminated, truncated), palm
-        position (E, 3)). h_bars: the lift target per object id (O,), m."""
+        position (E, 3)). start_height, start_low (E,): the target's centre and lowest surface
+        point at the episode's start (start_low read only with ``reward.lift_clearance``), m;
+        h_bars: the lift target per object id (O,), m."""
         poses = self.kinematics.forward(qpos)
         slots = self.slot_poses(qpos)  # (E, K, 7)
         target = slots.gather(1, target_slot[:, None, None].expand(-1, 1, 7))[:, 0]
@@ -531,7 +556,10 @@ class GraspTask(EnvBase):
             tip_distance = self.objects.sdf.query(tips, obj_pos, obj_quat, target_id)
         else:  # no SDF is needed: the com reward and no hold condition (hold_tips = 0)
             tip_distance = torch.zeros_like(tips[..., 0])
-        flags = self._get_termination(lift, h_bar, tip_distance, obj_pos, step_count)
+        clearance = None
+        if self.cfg.reward.lift_clearance > 0:
+            clearance = self.lowest_point(obj_pos, obj_quat, target_id) - start_low
+        flags = self._get_termination(lift, h_bar, tip_distance, obj_pos, step_count, clearance)
         terms = self._get_reward(lift, h_bar, flags[0], tips, tip_distance, obj_pos)
         terms["reward"] = total_reward(terms)
         terms["lift_height"] = lift
@@ -597,17 +625,21 @@ class GraspTask(EnvBase):
 
     def _get_termination(
         self, lift: torch.Tensor, h_bar: torch.Tensor, tip_distance: torch.Tensor,
-        obj_pos: torch.Tensor, step_count: torch.Tensor,
+        obj_pos: torch.Tensor, step_count: torch.Tensor, clearance: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(success, terminated, truncated), each (E,) bool: success is the target lifted by
         h_bar while held, ``reward.hold_tips`` fingertip pads within ``reward.hold_distance`` of
         its surface (tip_distance (E, 5), m): a toss through h_bar is not a lift (below a
-        training target of ``reward.hold_from`` it is). A blown-up simulation also truncates;
-        ``_observe`` adds that from the backend's ``unstable``."""
+        training target of ``reward.hold_from`` it is). With ``reward.lift_clearance``, its
+        lowest surface point must also have risen that far (clearance (E,), m): a tip is not a
+        lift. A blown-up simulation also truncates; ``_observe`` adds that from the backend's
+        ``unstable``."""
         r = self.cfg.reward
         held = (tip_distance < r.hold_distance).sum(-1) >= r.hold_tips
         held = held | (h_bar < r.hold_from)
         success = (lift >= h_bar) & held
+        if clearance is not None:
+            success = success & (clearance >= r.lift_clearance)
         fell = obj_pos[:, 2] < self.cfg.fall_height
         return success, success | fell, step_count >= self.cfg.max_steps
 
