@@ -406,8 +406,10 @@ def test_a_hand_that_starts_in_the_object_is_reported(builtin_data: Config) -> N
 def test_lift_clearance_counts_a_lift_not_a_tip(builtin_data: Config) -> None:
     """``reward.lift_clearance``: a settled box's lowest surface sample is on the table top
     (z = 0) and is the episode's ``start_low``; tipped 40 degrees about its lowest edge the box's
-    centre rises past a 1 cm target but its lowest point does not: no success. Raised 5 cm
-    upright, it succeeds. Without the option the tip succeeds (the paper's centre rise)."""
+    centre rises past a 1 cm target but its lowest point does not: the lift (``lift_height``,
+    the lift term) is the lowest point's ~0 and there is no success. Raised 5 cm more, clear of
+    the table, the lift is the centre's rise and it succeeds. Without the option the tip is a
+    lift (the paper's centre rise)."""
     from geomgrasp.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix
 
     def build(clearance: float) -> GraspTask:
@@ -451,12 +453,23 @@ def test_lift_clearance_counts_a_lift_not_a_tip(builtin_data: Config) -> None:
     low = env.lowest_point(pos, quat, env.target_objects())
     torch.testing.assert_close(env.state["start_low"], low)
     assert low.abs().max() < 0.003  # settled on the table top
-    assert place(env, tip=True) > 0.01
-    assert not bool(env._observe(reset=False)["success"].any())  # a tip is not a lift
-    place(env, tip=False)
-    assert env._observe(reset=False)["success"][:, 0].tolist() == [True, False]
+    r = env.cfg.reward
+    rise = place(env, tip=True)
+    assert rise > 0.01
+    td = env._observe(reset=False)
+    assert not bool(td["success"].any())  # a tip is not a lift ...
+    assert abs(float(td["lift_height"][0, 0])) < 0.003  # ... and is paid as none
+    paid = r.c1 / ((0.01 - td["lift_height"][0, 0]).abs() + r.eps_h)
+    torch.testing.assert_close(td["reward_lift"][0, 0], paid)
+    place(env, tip=False)  # (from the tipped pose: tipped and 5 cm up, clear of the table)
+    td = env._observe(reset=False)
+    assert td["success"][:, 0].tolist() == [True, False]
+    centre_rise = env.target_pose()[0][0, 2] - env.state["start_height"][0]
+    torch.testing.assert_close(td["lift_height"][0, 0], centre_rise)
     env.close()
     plain = build(0.0)
-    assert place(plain, tip=True) > 0.01
-    assert plain._observe(reset=False)["success"][:, 0].tolist() == [True, False]
+    rise = place(plain, tip=True)
+    td = plain._observe(reset=False)
+    assert td["success"][:, 0].tolist() == [True, False]
+    torch.testing.assert_close(td["lift_height"][0, 0], rise, atol=1e-5, rtol=0)
     plain.close()

@@ -1,5 +1,6 @@
 """Research scripts: scripts/home_heights.py (the per-object home heights of ``[robot]
-home_above_objects``) and scripts/early_lifts.py (what the initial policy's low lifts are)."""
+home_above_objects``), scripts/early_lifts.py (what the initial policy's low lifts are) and
+scripts/policy_probe.py (what a trained policy does over an episode)."""
 
 from __future__ import annotations
 
@@ -36,3 +37,28 @@ def test_tilt_between_orientations() -> None:
     torch.testing.assert_close(tilt_degrees(before, after), torch.tensor([90.0, 0.0, 0.0]),
                                atol=1e-3, rtol=0)
 
+
+
+def test_policy_probe_follows_an_episode(builtin_data: Config, tmp_path: Path) -> None:
+    """scripts/policy_probe.py on a tiny trained run: one row per action of a whole episode,
+    the target starting on the table (no rise at the first action), the hand's 5 servo targets
+    in each row, and the printed table's rows every ``--every`` actions plus the last."""
+    import policy_probe
+
+    from trainer.config import load_train_config
+    from trainer.ppo import train
+
+    cfg = load_train_config(
+        env={"num_envs": 4, "objects": "builtin_box", "representation": "bbox",
+             "data_dir": builtin_data.data_dir, "max_steps": 12},
+        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
+             "hidden": (16, 16)},
+        run={"total_steps": 32, "checkpoint_every": 1, "seed": 0},
+    )
+    run = train(cfg, tmp_path / "run", progress=False)
+    rows, success = policy_probe.probe(run.path, envs=3)
+    assert len(rows) == 12 and 0.0 <= success <= 1.0
+    assert abs(rows[0]["centre_rise"]) < 0.01 and abs(rows[0]["lowest_rise"]) < 0.01
+    assert all(len(row["hand"]) == 5 and row["palm_z"] > 0.0 for row in rows)
+    lines = policy_probe.main([str(run.path), "--envs", "3", "--every", "5"])
+    assert lines[1].startswith("action palm_z") and len(lines) == 2 + 3 + 1  # 0, 5, 10, 11

@@ -219,13 +219,15 @@ class RewardConfig(_Checked):
     """Fingertip pad to the target's surface (m, from its SDF) that counts as touching it for
     ``hold_tips``; the scripted grasps' lifts: 99 % have two pads within 2 cm."""
     lift_clearance: float = bounded(0.0, ge=0)
-    """A lift counts (success, the bonus, the curriculum's rates) only once the target's lowest
-    surface point (over its 512 surface samples, ~5 mm apart on a Table I object) has also risen
-    this far (m) since the episode's start: tipping an elongated object raises its centre but
-    not its lowest point. Pushing a wing tips the toy airplane 3 cm at its centre, the untrained
-    policy's "lifts" (results/cpu-perobject-2026-11-26/). 0 (the default, the paper): the
-    centre's rise alone. Near no-op at the task's 0.2 m (a held Table I object is then off the
-    table); it changes the curriculum's low targets."""
+    """The lift Δh (the lift term, success, the curriculum's rates, ``lift_height``) is the
+    target's centre's rise once its lowest surface point (over its 512 surface samples, ~5 mm
+    apart on a Table I object) has risen this far (m) since the episode's start, and that
+    lowest point's rise until then: tipping an elongated object raises its centre but not its
+    lowest point, so a tip is paid and counted as no lift. Pushing a wing tips the toy
+    airplane 3 cm at its centre, the untrained policy's "lifts"; the tuna can's policy held it
+    tipped 1.7 cm for the lift term (results/cpu-lift-clearance-2026-11-26/). 0 (the default,
+    the paper): the centre's rise always. Success at a target >= this value is the same as
+    requiring both rises; at the task's 0.2 m a held Table I object is off the table anyway."""
     hold_from: float = bounded(0.0, ge=0)
     """Training only: the hold condition applies to lift targets of at least this height (m);
     at a lower curriculum target any rise succeeds. 0 (the default): always held. Tried at

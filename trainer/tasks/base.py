@@ -556,10 +556,12 @@ class GraspTask(EnvBase):
             tip_distance = self.objects.sdf.query(tips, obj_pos, obj_quat, target_id)
         else:  # no SDF is needed: the com reward and no hold condition (hold_tips = 0)
             tip_distance = torch.zeros_like(tips[..., 0])
-        clearance = None
         if self.cfg.reward.lift_clearance > 0:
-            clearance = self.lowest_point(obj_pos, obj_quat, target_id) - start_low
-        flags = self._get_termination(lift, h_bar, tip_distance, obj_pos, step_count, clearance)
+            # Until the target is clear of where it rested, its lift is its lowest point's rise:
+            # a tipped object's centre rises, its lowest point does not.
+            low_rise = self.lowest_point(obj_pos, obj_quat, target_id) - start_low
+            lift = torch.where(low_rise >= self.cfg.reward.lift_clearance, lift, low_rise)
+        flags = self._get_termination(lift, h_bar, tip_distance, obj_pos, step_count)
         terms = self._get_reward(lift, h_bar, flags[0], tips, tip_distance, obj_pos)
         terms["reward"] = total_reward(terms)
         terms["lift_height"] = lift
@@ -625,21 +627,17 @@ class GraspTask(EnvBase):
 
     def _get_termination(
         self, lift: torch.Tensor, h_bar: torch.Tensor, tip_distance: torch.Tensor,
-        obj_pos: torch.Tensor, step_count: torch.Tensor, clearance: torch.Tensor | None = None,
+        obj_pos: torch.Tensor, step_count: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(success, terminated, truncated), each (E,) bool: success is the target lifted by
         h_bar while held, ``reward.hold_tips`` fingertip pads within ``reward.hold_distance`` of
         its surface (tip_distance (E, 5), m): a toss through h_bar is not a lift (below a
-        training target of ``reward.hold_from`` it is). With ``reward.lift_clearance``, its
-        lowest surface point must also have risen that far (clearance (E,), m): a tip is not a
-        lift. A blown-up simulation also truncates; ``_observe`` adds that from the backend's
-        ``unstable``."""
+        training target of ``reward.hold_from`` it is). A blown-up simulation also truncates;
+        ``_observe`` adds that from the backend's ``unstable``."""
         r = self.cfg.reward
         held = (tip_distance < r.hold_distance).sum(-1) >= r.hold_tips
         held = held | (h_bar < r.hold_from)
         success = (lift >= h_bar) & held
-        if clearance is not None:
-            success = success & (clearance >= r.lift_clearance)
         fell = obj_pos[:, 2] < self.cfg.fall_height
         return success, success | fell, step_count >= self.cfg.max_steps
 
