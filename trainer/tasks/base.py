@@ -337,6 +337,18 @@ class GraspTask(EnvBase):
         heights = torch.einsum("npk,nk->np", self.objects.points[object_id], vertical)
         return heights.amin(-1) + obj_pos[:, 2]
 
+    def _episode_start(
+        self, poses: torch.Tensor, target_slot: torch.Tensor, object_id: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
+        """What the lift is measured from, (n,) m each, for slot poses (n, K, 7), the target's
+        slot (n,) and object id (n,): ``start_height`` (its centre) and, with
+        ``reward.lift_clearance``, ``start_low`` (its lowest surface point)."""
+        pose = poses.gather(1, target_slot[:, None, None].expand(-1, 1, 7))[:, 0]
+        start = {"start_height": pose[:, 2]}
+        if self.cfg.reward.lift_clearance > 0:
+            start["start_low"] = self.lowest_point(pose[:, :3], pose[:, 3:], object_id)
+        return start
+
     def target_pose(self, qpos: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """The target's position (E, 3) and quaternion (E, 4) in the world."""
         poses = self.slot_poses(self.backend.qpos if qpos is None else qpos)
@@ -351,12 +363,10 @@ class GraspTask(EnvBase):
         slots = slots.to(self.device)
         keep = slots < 0
         target = torch.where(keep, self.state["target_slot"], slots)
-        pose = self.slot_poses(self.backend.qpos).gather(1, target[:, None, None].expand(-1, 1, 7))
-        pose = pose[:, 0]
-        self.state["start_height"] = torch.where(keep, self.state["start_height"], pose[:, 2])
-        if self.cfg.reward.lift_clearance > 0:
-            low = self.lowest_point(pose[:, :3], pose[:, 3:], self.target_objects(target))
-            self.state["start_low"] = torch.where(keep, self.state["start_low"], low)
+        start = self._episode_start(self.slot_poses(self.backend.qpos), target,
+                                    self.target_objects(target))
+        for key, value in start.items():
+            self.state[key] = torch.where(keep, self.state[key], value)
         self.state["target_slot"] = target
         return self._observe(reset=True)
 
@@ -388,7 +398,6 @@ class GraspTask(EnvBase):
         pick = torch.randint(self.banks.shape[1], (n,), generator=self._rng, device=self.device)
         pose = self.banks[self.env_layout[ids], pick]  # (n, K, 7)
         pose = turned(pose, self._reset_yaw(n))
-        pos = pose[..., :3]
         home = self.home_index[self.env_layout[ids], pick]
         qpos = self.home_qpos[home]
         qpos[:, self.slot_qpos] = pose
@@ -396,7 +405,9 @@ class GraspTask(EnvBase):
         fresh = TensorDict(
             {
                 "step_count": torch.zeros(n, dtype=torch.long, device=self.device),
-                "start_height": pos.gather(1, target_slot[:, None, None].expand(-1, 1, 3))[:, 0, 2],
+                **self._episode_start(
+                    pose, target_slot, self.assignment[ids].gather(1, target_slot[:, None])[:, 0]
+                ),
                 "target_slot": target_slot,
                 "target_pos": self.home_keypoint[home],
                 "target_rot": self.home_rot.expand(n, 3, 3),
@@ -406,10 +417,6 @@ class GraspTask(EnvBase):
             batch_size=[n],
             device=self.device,
         )
-        if self.cfg.reward.lift_clearance > 0:
-            start = pose.gather(1, target_slot[:, None, None].expand(-1, 1, 7))[:, 0]
-            object_id = self.assignment[ids].gather(1, target_slot[:, None])[:, 0]
-            fresh["start_low"] = self.lowest_point(start[:, :3], start[:, 3:], object_id)
         self.state[ids] = fresh
         mocap = self.robot.mocap(fresh["target_pos"], fresh["target_rot"])
         self.backend.set_state(
