@@ -1,17 +1,19 @@
 """The reward's balance, measured from rollouts: is resting the fingers on an object worth more
 than lifting it? (issue 34, "Reward balance").
 
-Two scripted policies per object (``trainer.grasps.TopGrasp``), on the same initial states:
-*lift* (the top grasp: approach, close, lift 0.3 m; the episode ends at the task's success, with
-its one-off bonus c2) and *rest* (the same grasp with no lift, then holding the closed hand on
-the object until the episode's ``max_steps``). Per trial, the rewards until its episode ends
-(success, the object off the table, or ``max_steps``), summed per term and discounted with each
-``--gammas`` value from the first action. Prints a table per object and, as the ratio against the
-lift measured in the same run, the mean discounted return of rest over lift: above 1 means PPO
-with that discount prefers resting to lifting.
+Two scripted policies per object, on the same initial states: *lift* (a grasp family's script,
+by default the top grasp: approach, close, lift; the episode ends at the task's success, with
+its one-off bonus c2) and *rest* (the same script with no lift, then holding the closed hand on
+the object until the episode's ``max_steps``). ``--family NAME[:VARIANT]`` picks the script
+from ``trainer.grasps.families.FAMILIES`` (e.g. ``pinch:press6``, the fingertip pinch that
+lifts the flat objects); the variant's environment overrides apply. Per trial, the rewards
+until its episode ends (success, the object off the table, or ``max_steps``), summed per term
+and discounted with each ``--gammas`` value from the first action. Prints a table per object
+and, as the ratio against the lift measured in the same run, the mean discounted return of rest
+over lift: above 1 means PPO with that discount prefers resting to lifting.
 
     python bench/reward_balance.py --objects 077_rubiks_cube,013_apple --trials 10 \\
-        [--gammas 0.99,0.998] [--max-steps 300] [--data-dir data] [--config FILE] \\
+        [--family top] [--gammas 0.99,0.998] [--max-steps 300] [--data-dir data] [--config FILE] \\
         [--set KEY=VALUE ...] [--out FILE.csv]
 """
 
@@ -68,6 +70,8 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--objects", default="077_rubiks_cube,013_apple,065-a_cups")
     parser.add_argument("--trials", type=int, default=10)
+    parser.add_argument("--family", default="top",
+                        help="grasp family[:variant] of trainer.grasps.families [top]")
     parser.add_argument("--gammas", default="0.99,0.998")
     parser.add_argument("--max-steps", type=int, default=300, help="episode length [300]")
     parser.add_argument("--seed", type=int, default=0)
@@ -85,20 +89,31 @@ def main(argv: list[str] | None = None) -> None:
 
 def run(args: argparse.Namespace) -> None:
     from trainer.config import dotted_overrides, load_env_config, parse_sets
-    from trainer.grasps import TopGrasp
+    from trainer.grasps.families import variants
     from trainer.objects import resolve_names
     from trainer.tasks import make_env
 
     gammas = [float(g) for g in args.gammas.split(",")]
-    extra = dotted_overrides(parse_sets(args.sets))
+    name, _, variant_name = args.family.partition(":")
+    variant_name = variant_name or "base"
+    variant = variants(name, [variant_name])[variant_name]
+    extra = dict(variant.env)
+    for section, fields in dotted_overrides(parse_sets(args.sets)).items():
+        if isinstance(fields, dict) and isinstance(extra.get(section), dict):
+            extra[section] = {**extra[section], **fields}
+        else:
+            extra[section] = fields
     if args.data_dir is not None:
         extra["data_dir"] = args.data_dir
     cfg = load_env_config(args.config, task="lift", context="none", representation="com",
                           max_steps=args.max_steps, **extra)
     names = resolve_names(args.objects, cfg.data_dir)
     cfg = replace(cfg, num_envs=args.trials * len(names), objects=",".join(names))
-    lift = TopGrasp()
-    before_lift = lift.approach_steps + lift.descend_steps + lift.close_steps
+    lift = variant.script
+    before_lift = lift.total_steps - lift.lift_steps - lift.hold_steps
+    if before_lift >= args.max_steps:
+        raise UserError(f"the {args.family} script closes only after {before_lift} actions; "
+                        f"give --max-steps more than that")
     rest = replace(lift, lift=0.0, lift_steps=0, hold_steps=args.max_steps - before_lift)
     results = {}
     for label, script in (("lift", lift), ("rest", rest)):
@@ -110,8 +125,10 @@ def run(args: argparse.Namespace) -> None:
             env.close()
         results[label] = (rewards, terms, lifted, steps, ids)
     rows = []
-    print(f"reward {cfg.reward.kind}: c1 {cfg.reward.c1}, c2 {cfg.reward.c2}, c3 {cfg.reward.c3}, "
-          f"eps_sdf {cfg.reward.eps_sdf}; episodes of {cfg.max_steps} actions, {args.trials} "
+    rc = cfg.reward
+    print(f"{args.family}; reward {rc.kind}: h_bar {rc.h_bar}, lift_clearance "
+          f"{rc.lift_clearance}, c1 {rc.c1}, c2 {rc.c2}, c3 {rc.c3}, "
+          f"eps_sdf {rc.eps_sdf}; episodes of {cfg.max_steps} actions, {args.trials} "
           "trials per object and script (the same initial states)")
     header = "| object | script | lifted | steps | " + " | ".join(
         f"sum {n}" for n in results["lift"][1]) + " | " + " | ".join(

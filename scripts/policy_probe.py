@@ -3,9 +3,13 @@ envs, the palm's height, the lowest fingertip pad's, how many pads are within 2 
 target's surface, their summed distance to it, the target's centre rise and lowest-point rise,
 the palm's horizontal distance to it, and the hand's servo targets. A policy that reaches,
 rests or tips shows it here without a video (results/cpu-lift-clearance-2026-11-26/: the tuna
-can held tipped 1.7 cm for 150 actions).
+can held tipped 1.7 cm for 150 actions). Then what the episode earned, averaged over envs up to
+each one's end: the reward's terms summed and the return discounted with each ``--gammas``
+value, comparable with ``bench/reward_balance.py``'s scripted lift and rest (``--h-bar``: the
+lift target to score against, e.g. the curriculum's 0.03 m; default the run's).
 
     python scripts/policy_probe.py RUN_DIR [--envs 32] [--every 10] [--sample] [--seed 7]
+                                   [--h-bar M] [--gammas 0.99,0.998]
 """
 
 from __future__ import annotations
@@ -21,17 +25,25 @@ COLUMNS = ("palm_z", "lowest_pad_z", "pads_near", "pad_distance", "centre_rise",
            "palm_xy_distance")
 
 
-def probe(run_dir: Path, envs: int = 32, sample: bool = False,
-          seed: int = 7) -> tuple[list[dict[str, float | list[float]]], float]:
+def probe(run_dir: Path, envs: int = 32, sample: bool = False, seed: int = 7,
+          h_bar: float | None = None, gammas: tuple[float, ...] = (0.99, 0.998),
+          ) -> tuple[list[dict[str, float | list[float]]], float, dict[str, float]]:
     """One episode in ``envs`` envs of the run's last checkpoint (deterministic unless
     ``sample``): per action, the mean of each of ``COLUMNS`` (m; ``pads_near`` a count) and
-    ``hand`` (the 5 servo targets, rad); and the success rate."""
+    ``hand`` (the 5 servo targets, rad); the success rate; and the episode's earnings, means over
+    envs up to each one's end: ``steps``, ``sum_<term>`` per reward term, ``return`` and
+    ``G_<gamma>`` (discounted from the first action). ``h_bar``: the lift target (m) the
+    reward and success use [the run's ``reward.h_bar``]."""
     from trainer.evaluation import run_episodes
     from trainer.tasks import make_env
+    from trainer.tasks.terms import reward_output_key, reward_terms
     from trainer.training.checkpoint import load_agent
 
     cfg, agent = load_agent(run_dir)
     env_cfg = dataclasses.replace(cfg.env, num_envs=envs, compile=False)
+    if h_bar is not None:
+        env_cfg = dataclasses.replace(env_cfg, reward=dataclasses.replace(
+            env_cfg.reward, h_bar=h_bar, h_bar_start=h_bar))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         env = make_env(env_cfg, seed=seed)
@@ -47,6 +59,23 @@ def probe(run_dir: Path, envs: int = 32, sample: bool = False,
         return out
 
     env.reset = reset_and_note
+    names = list(reward_terms(env_cfg.reward))
+    alive = torch.ones(envs, dtype=torch.bool)
+    earned: dict[str, list[torch.Tensor]] = {"reward": [], **{n: [] for n in names}}
+    step = env.step
+
+    def step_and_note(td):  # noqa: ANN001, ANN202
+        """The env's step, noting each env's reward and its terms until its episode's end."""
+        out = step(td)
+        nxt = out["next"]
+        mask = alive.to(torch.float32)
+        earned["reward"].append(nxt["reward"][:, 0].cpu() * mask)
+        for n in names:
+            earned[n].append(nxt[reward_output_key(n)][:, 0].cpu() * mask)
+        alive.mul_(~nxt["done"][:, 0].cpu())
+        return out
+
+    env.step = step_and_note
 
     def on_step() -> None:
         pos, quat = env.target_pose()
@@ -67,9 +96,16 @@ def probe(run_dir: Path, envs: int = 32, sample: bool = False,
         row["hand"] = env.state["ctrl"][:, env.robot.hand.actuators].mean(0).tolist()
         rows.append(row)
 
-    success, _, _ = run_episodes(env, agent.actor, deterministic=not sample, on_step=on_step)
+    success, length, _ = run_episodes(env, agent.actor, deterministic=not sample,
+                                      on_step=on_step)
     env.close()
-    return rows, float(success.float().mean())
+    rewards = torch.stack(earned["reward"]).double()  # (T, E)
+    returns = {"steps": float(length.float().mean()), "return": float(rewards.sum(0).mean())}
+    returns.update({f"sum_{n}": float(torch.stack(earned[n]).sum(0).mean()) for n in names})
+    weights = torch.arange(rewards.shape[0], dtype=torch.float64)
+    returns.update({f"G_{g}": float((rewards * (g ** weights)[:, None]).sum(0).mean())
+                    for g in gammas})
+    return rows, float(success.float().mean()), returns
 
 
 def main(argv: list[str] | None = None) -> list[str]:
@@ -79,8 +115,12 @@ def main(argv: list[str] | None = None) -> list[str]:
     parser.add_argument("--every", type=int, default=10)
     parser.add_argument("--sample", action="store_true")
     parser.add_argument("--seed", type=int, default=7)
+    parser.add_argument("--h-bar", type=float, default=None)
+    parser.add_argument("--gammas", default="0.99,0.998")
     args = parser.parse_args(argv)
-    rows, success = probe(args.run_dir, args.envs, args.sample, args.seed)
+    gammas = tuple(float(g) for g in args.gammas.split(","))
+    rows, success, returns = probe(args.run_dir, args.envs, args.sample, args.seed,
+                                   args.h_bar, gammas)
     lines = [f"success {success:.3f} ({args.envs} envs, "
              f"{'sampled' if args.sample else 'deterministic'} actions)",
              "action " + " ".join(COLUMNS) + " hand_targets"]
@@ -88,6 +128,8 @@ def main(argv: list[str] | None = None) -> list[str]:
         row = rows[i]
         hand = " ".join(f"{x:.2f}" for x in row["hand"])  # type: ignore[union-attr]
         lines.append(f"{i} " + " ".join(f"{row[c]:.3f}" for c in COLUMNS) + f" [{hand}]")
+    lines.append("earned (mean over envs, to each episode's end): "
+                 + ", ".join(f"{k} {v:.1f}" for k, v in returns.items()))
     print("\n".join(lines))
     return lines
 

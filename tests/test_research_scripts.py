@@ -7,6 +7,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import pytest
+
 from geomprep.config import Config
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
@@ -56,9 +58,16 @@ def test_policy_probe_follows_an_episode(builtin_data: Config, tmp_path: Path) -
         run={"total_steps": 32, "checkpoint_every": 1, "seed": 0},
     )
     run = train(cfg, tmp_path / "run", progress=False)
-    rows, success = policy_probe.probe(run.path, envs=3)
+    rows, success, earned = policy_probe.probe(run.path, envs=3, h_bar=0.05, gammas=(0.9, 1.0))
     assert len(rows) == 12 and 0.0 <= success <= 1.0
+    # the discounted return weighs later rewards less; with gamma 1 it is the plain sum, the
+    # sum of the terms (the sdf reward's lift, success and contact terms)
+    assert earned["G_0.9"] < earned["G_1.0"] == pytest.approx(earned["return"], rel=1e-6)
+    assert earned["return"] == pytest.approx(
+        earned["sum_lift"] + earned["sum_success"] + earned["sum_contact"], rel=1e-4)
+    assert earned["steps"] <= 12
     assert abs(rows[0]["centre_rise"]) < 0.01 and abs(rows[0]["lowest_rise"]) < 0.01
     assert all(len(row["hand"]) == 5 and row["palm_z"] > 0.0 for row in rows)
     lines = policy_probe.main([str(run.path), "--envs", "3", "--every", "5"])
-    assert lines[1].startswith("action palm_z") and len(lines) == 2 + 3 + 1  # 0, 5, 10, 11
+    assert lines[1].startswith("action palm_z") and len(lines) == 2 + 3 + 1 + 1  # 0, 5, 10, 11
+    assert lines[-1].startswith("earned") and "G_0.998" in lines[-1]

@@ -36,3 +36,37 @@ def test_lift_ends_with_the_bonus_and_rest_runs_to_the_end(builtin_data: Config,
     assert float(lift["steps"]) < 160 and float(rest["steps"]) == 160
     assert int(rest["lifted"]) == 0 and float(rest["sum_success"]) == 0
     assert float(rest["sum_contact"]) > float(lift["sum_contact"]) > 0
+
+
+def test_family_picks_the_script_and_its_rest_runs_to_the_end(builtin_data: Config,
+                                                              tmp_path: Path) -> None:
+    """``--family pinch:press6``: the fingertip pinch (closed after 130 actions) and its rest;
+    the episode's lift target as ``--set`` gives it."""
+    out = tmp_path / "pinch.csv"
+    reward_balance.main(["--objects", "builtin_box", "--trials", "1", "--max-steps", "140",
+                         "--family", "pinch:press6", "--set", "reward.h_bar=0.03",
+                         "--set", "reward.h_bar_start=0.03",
+                         "--data-dir", str(builtin_data.data_dir), "--out", str(out)])
+    lift, rest = list(csv.DictReader(out.read_text().splitlines()))
+    assert float(lift["steps"]) <= 140 and float(rest["steps"]) == 140
+    assert int(rest["lifted"]) == 0 and float(rest["sum_success"]) == 0
+    assert float(rest["sum_contact"]) > 0
+
+
+@pytest.mark.parametrize(("family", "message"), [
+    ("grip", "unknown grasp family 'grip'"),
+    ("pinch:tight", "unknown variant 'tight' of grasp family 'pinch'"),
+])
+def test_unknown_family_or_variant_is_a_one_line_error(
+        family: str, message: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        reward_balance.main(["--family", family, "--objects", "builtin_box"])
+    assert exit_info.value.code == 1
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_script_longer_than_the_episode_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        reward_balance.main(["--family", "pinch:press6", "--max-steps", "100"])
+    assert "closes only after 130 actions" in capsys.readouterr().err
