@@ -35,6 +35,9 @@ def _paper(r: RewardConfig, q: terms.StepQuantities) -> dict[str, torch.Tensor]:
         contact = torch.zeros_like(q.lift)
     elif r.kind == "sdf":
         contact = r.c3 / (q.tip_distance.clamp_min(0.0).sum(-1) + r.eps_sdf)
+    elif r.kind == "sdf-thumb":  # not the paper's: the thumb and the nearest finger
+        d = q.tip_distance.clamp_min(0.0)
+        contact = r.c3 / (d[:, 0] + d[:, 1:].min(-1).values + r.eps_sdf)
     else:
         contact = r.c3 / ((q.tips - q.obj_pos[:, None, :]).norm(dim=-1).sum(-1) + r.eps_sdf)
     return {"lift": lift, "success": success, "contact": contact}
@@ -57,6 +60,24 @@ def test_table_is_the_papers_reward_bit_for_bit(kind: str) -> None:
 
 def test_every_reward_kind_has_a_contact_variant() -> None:
     assert set(terms.CONTACT_VARIANTS) == set(REWARDS)
+
+
+def test_thumb_variant_pays_a_pinch_fully_and_a_rest_without_the_thumb_less() -> None:
+    """``sdf-thumb``: a thumb-index pinch (other pads 5 cm off) earns 1 / eps_sdf, as much as
+    five pads on the surface; four fingers resting on the object with the thumb 4 cm off earn
+    less. The paper's five-pad sum pays the pinch less than that rest."""
+    pinch = [0.0, 0.0, 0.05, 0.05, 0.05]
+    rest = [0.04, 0.0, 0.0, 0.0, 0.0]
+    everything = [0.0] * 5
+    q = _quantities(3)._replace(tip_distance=torch.tensor([pinch, rest, everything]))
+    thumb = RewardConfig(kind="sdf-thumb")
+    paper = RewardConfig(kind="sdf")
+    by_thumb = terms.evaluate_terms(terms.reward_terms(thumb), q, thumb)["contact"]
+    by_paper = terms.evaluate_terms(terms.reward_terms(paper), q, paper)["contact"]
+    torch.testing.assert_close(by_thumb[0], by_thumb[2])
+    torch.testing.assert_close(by_thumb[0], torch.tensor(1.0 / thumb.eps_sdf))
+    assert by_thumb[1] < by_thumb[0]
+    assert by_paper[0] < by_paper[1]
 
 
 def test_ablation_without_contact_is_zero_whatever_the_weight() -> None:

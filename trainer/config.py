@@ -42,7 +42,7 @@ BACKENDS = ("cpu", "warp")
 ``warp`` is MuJoCo Warp (every env a world of one batched model; on ``--device cuda`` a GPU,
 on ``cpu`` Warp's CPU device, slow but the same code), from ``pip install -e ".[gpu]"``."""
 CONTEXTS = ("none", "bbox")
-REWARDS = ("sdf", "com", "none")
+REWARDS = ("sdf", "com", "none", "sdf-thumb")
 ROBOTS = ("ur5e", "floating")
 HAND_GEOMETRIES = ("capsules", "hulls")
 HAND_ACTIONS = ("absolute", "relative")
@@ -187,7 +187,12 @@ class RewardConfig(_Checked):
 
     kind: str = bounded("sdf", choices=REWARDS)
     """The contact term's variant: ``sdf`` (d: fingertip distances to the surface), ``com`` (to
-    the centre of mass) or ``none`` (no contact term: 0)."""
+    the centre of mass) or ``none`` (no contact term: 0): the paper's reward and its ablations.
+    ``sdf-thumb`` (not the paper's; an option for the flat objects, 2026-11-26): d is the thumb
+    pad's distance plus the nearest finger pad's, so a thumb-finger pinch earns the term's
+    maximum and the other three fingers are not drawn onto the object
+    (results/reward-balance-2026-11-26/: on a flat object the paper's term pays a five-pad rest
+    on its top face 2.7-3.9x per action what it pays a pinch)."""
     h_bar: float = bounded(0.2, gt=0)
     c1: float = 0.5
     """Weight of the lift term."""

@@ -118,7 +118,8 @@ class GraspTask(EnvBase):
         # The SDF: for the representation, the reward's fingertip distances, or to tell a held
         # lift from a toss (reward.hold_tips).
         need_sdf = (
-            cfg.representation == "sdf" or cfg.reward.kind == "sdf" or cfg.reward.hold_tips > 0
+            cfg.representation == "sdf" or cfg.reward.kind.startswith("sdf")
+            or cfg.reward.hold_tips > 0
         )
         sdf_dtype = torch.float16 if cfg.sdf_dtype == "float16" else torch.float32
         self.objects: ObjectSet = load_objects(

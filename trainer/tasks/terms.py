@@ -13,6 +13,7 @@ of one table (``[reward]``: weights c1, c2, c3; ``kind`` picks the contact term'
 | contact | c3     | sdf: c3 / (sum of fingertip distances >= 0 + eps_sdf) |
 |         |        | com: c3 / (sum of fingertip-COM distances + eps_sdf)  |
 |         |        | none: 0                                             |
+|         |        | sdf-thumb: c3 / (thumb's + nearest finger's distance >= 0 + eps_sdf) |
 
 A term's function receives its weight rather than returning a value to be multiplied by it:
 the paper's inverse-distance terms divide the weight (``c1 / d``), and ``c1 * (1 / d)`` would
@@ -79,6 +80,18 @@ def fingertip_com_closeness(weight: float, q: StepQuantities, r: RewardConfig) -
     return weight / ((q.tips - q.obj_pos[:, None, :]).norm(dim=-1).sum(-1) + r.eps_sdf)
 
 
+def thumb_finger_surface_closeness(
+    weight: float, q: StepQuantities, r: RewardConfig
+) -> torch.Tensor:
+    """weight / (the thumb pad's distance to the target's surface + the nearest finger pad's +
+    eps_sdf), distances >= 0 as in ``fingertip_surface_closeness`` (pads in ``FINGERTIPS``
+    order: the thumb first). Not the paper's: the closeness of the SIH's smallest grasp, a
+    thumb against one finger, which the five-pad sum pays less than resting the fingers on a
+    flat object's top face."""
+    d = q.tip_distance.clamp_min(0.0)
+    return weight / (d[:, 0] + d[:, 1:].amin(-1) + r.eps_sdf)
+
+
 def zero(weight: float, q: StepQuantities, r: RewardConfig) -> torch.Tensor:
     """No term (the paper's ablation without a contact term): 0 whatever the weight."""
     return torch.zeros_like(q.lift)
@@ -88,6 +101,7 @@ CONTACT_VARIANTS: dict[str, TermFunction] = {
     "sdf": fingertip_surface_closeness,
     "com": fingertip_com_closeness,
     "none": zero,
+    "sdf-thumb": thumb_finger_surface_closeness,
 }
 """``reward.kind`` -> the contact term (``trainer.config.REWARDS`` lists the same names)."""
 
