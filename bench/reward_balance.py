@@ -97,6 +97,11 @@ def run(args: argparse.Namespace) -> None:
     name, _, variant_name = args.family.partition(":")
     variant_name = variant_name or "base"
     variant = variants(name, [variant_name])[variant_name]
+    lift = variant.script
+    before_lift = lift.total_steps - lift.lift_steps - lift.hold_steps
+    if before_lift >= args.max_steps:
+        raise UserError(f"the {args.family} script closes only after {before_lift} actions; "
+                        f"give --max-steps more than that")
     extra = dict(variant.env)
     for section, fields in dotted_overrides(parse_sets(args.sets)).items():
         if isinstance(fields, dict) and isinstance(extra.get(section), dict):
@@ -109,11 +114,6 @@ def run(args: argparse.Namespace) -> None:
                           max_steps=args.max_steps, **extra)
     names = resolve_names(args.objects, cfg.data_dir)
     cfg = replace(cfg, num_envs=args.trials * len(names), objects=",".join(names))
-    lift = variant.script
-    before_lift = lift.total_steps - lift.lift_steps - lift.hold_steps
-    if before_lift >= args.max_steps:
-        raise UserError(f"the {args.family} script closes only after {before_lift} actions; "
-                        f"give --max-steps more than that")
     rest = replace(lift, lift=0.0, lift_steps=0, hold_steps=args.max_steps - before_lift)
     results = {}
     for label, script in (("lift", lift), ("rest", rest)):

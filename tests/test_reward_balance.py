@@ -68,5 +68,6 @@ def test_unknown_family_or_variant_is_a_one_line_error(
 
 def test_a_script_longer_than_the_episode_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit):
-        reward_balance.main(["--family", "pinch:press6", "--max-steps", "100"])
+        reward_balance.main(["--family", "pinch:press6", "--max-steps", "100",
+                             "--objects", "no_such_object"])  # refused before any object
     assert "closes only after 130 actions" in capsys.readouterr().err
