@@ -89,7 +89,7 @@ def main(argv: list[str] | None = None) -> None:
 
 def run(args: argparse.Namespace) -> None:
     from trainer.config import dotted_overrides, load_env_config, parse_sets
-    from trainer.grasps.families import variants
+    from trainer.grasps.families import merge_overrides, variants
     from trainer.objects import resolve_names
     from trainer.tasks import make_env
 
@@ -102,12 +102,7 @@ def run(args: argparse.Namespace) -> None:
     if before_lift >= args.max_steps:
         raise UserError(f"the {args.family} script closes only after {before_lift} actions; "
                         f"give --max-steps more than that")
-    extra = dict(variant.env)
-    for section, fields in dotted_overrides(parse_sets(args.sets)).items():
-        if isinstance(fields, dict) and isinstance(extra.get(section), dict):
-            extra[section] = {**extra[section], **fields}
-        else:
-            extra[section] = fields
+    extra = merge_overrides(variant.env, dotted_overrides(parse_sets(args.sets)))
     if args.data_dir is not None:
         extra["data_dir"] = args.data_dir
     cfg = load_env_config(args.config, task="lift", context="none", representation="com",

@@ -234,7 +234,7 @@ def best_variants(names: Sequence[str]) -> dict[str, tuple[Variant, list[str]]]:
         if spec not in out:
             family_name, _, variant_name = spec.partition(":")
             variant = variants(family_name, [variant_name or "base"])[variant_name or "base"]
-            out[spec] = (Variant(variant.script, _merge(hand, variant.env)), [])
+            out[spec] = (Variant(variant.script, merge_overrides(hand, variant.env)), [])
         out[spec][1].append(name)
     return out
 
@@ -266,7 +266,7 @@ def variants(family_name: str, names: Sequence[str] | None = None,
     return {n: fam.variants[n] for n in names}
 
 
-def _merge(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
+def merge_overrides(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
     """``base`` with ``extra`` on top, section dicts merged field by field."""
     out = dict(base)
     for key, value in extra.items():
@@ -297,7 +297,7 @@ def measure(
     from trainer.objects import resolve_names
     from trainer.tasks import make_env
 
-    overrides = _merge({"representation": "com", **env}, variant.env)
+    overrides = merge_overrides({"representation": "com", **env}, variant.env)
     cfg = load_env_config(config_path, task="lift", context="none", **overrides)
     check_device(cfg.device, f"device {cfg.device!r}", 'use device "cpu"')
     names = resolve_names(",".join(objects), cfg.data_dir)
