@@ -10,7 +10,8 @@
 #                                                  kernel cache (kcache.tar.xz.0, .1, ...)
 #
 # A chunk trains until GPU_CAMPAIGN_DEADLINE seconds (default 560) after this command started,
-# less GPU_CAMPAIGN_RESERVE (default 120) for the evaluation and the copies, then stops with a
+# less GPU_CAMPAIGN_RESERVE for the last iteration's overrun, the copies and the evaluation
+# (default 60 s without one, 200 s with one), then stops with a
 # checkpoint (trainer run --minutes; `timeout -s INT` is the backstop: the trainer checkpoints
 # on SIGINT too). The run is results/gpu-table1-campaign/run: resumed if it holds a checkpoint,
 # else started from results/gpu-table1-campaign/campaign.toml.
@@ -19,7 +20,8 @@
 # interpreter's own packages, no parts), GPU_CAMPAIGN_RUN (the run folder),
 # GPU_CAMPAIGN_OVERRIDE (TOML whose keys replace the campaign config's in a new run),
 # GPU_CAMPAIGN_STEPS (trainer run --steps: the run's total env steps after this chunk),
-# GPU_CAMPAIGN_EPISODES (eval episodes per object, default 20; 0: no eval), GPU_CAMPAIGN_PIECE
+# GPU_CAMPAIGN_EPISODES (eval episodes per object, default 0: no eval on the GPU, whose time is
+# better spent training while the training success rate is near 0), GPU_CAMPAIGN_PIECE
 # (bytes per returned piece of the kernel cache, default 15,000,000).
 set -uo pipefail
 start=$(date +%s)
@@ -29,8 +31,14 @@ SITE=${GPU_CAMPAIGN_SITE:-$STAGE/site}
 RUN=${GPU_CAMPAIGN_RUN:-results/gpu-table1-campaign/run}
 CONFIG=results/gpu-table1-campaign/campaign.toml
 DEADLINE=${GPU_CAMPAIGN_DEADLINE:-560}
-RESERVE=${GPU_CAMPAIGN_RESERVE:-120}
-EPISODES=${GPU_CAMPAIGN_EPISODES:-20}
+EPISODES=${GPU_CAMPAIGN_EPISODES:-0}
+# Measured on an H100 (2026-11-26): an iteration of the campaign takes 25-35 s once hands touch
+# objects, and the trainer stops after the iteration that crosses --minutes; an eval of 20
+# episodes per object did not finish in the 65 s left to it.
+if [ "$EPISODES" -gt 0 ]; then RESERVE=${GPU_CAMPAIGN_RESERVE:-200}; else RESERVE=${GPU_CAMPAIGN_RESERVE:-60}; fi
+# The campaign never renders; a machine whose environment names an OpenGL backend it lacks
+# (MUJOCO_GL=egl without libEGL) would fail at `import mujoco` (seen 2026-11-26).
+export MUJOCO_GL=disable
 PIECE=${GPU_CAMPAIGN_PIECE:-15000000}
 : "${OUT:?OUT must name the folder the files go to}"
 mkdir -p "$STAGE/parts" "$OUT"
