@@ -43,6 +43,20 @@ sq for lift, bbox for bin).
 
     python bench/env_throughput.py --backend warp --device cuda [--num-envs 1024,4096,16384]
                                    [--repr com,sdf] [--tasks lift] [--objects auto]
+
+4. In contact (``--policy RUN``, either backend): the run's own env config (its task, objects,
+   representation, physics; ``--num-envs`` the first of ``--envs``) driven by the run's trained
+   policy (deterministic actions), first ``--advance`` env steps untimed so that the hands reach
+   the objects, then the alternating blocks, policy + env step against physics only. Random
+   actions from the reset states (1-3) hardly touch an object, so they miss what contacts cost
+   the physics (a learning run's rate falls 3-7x as its hands start grasping). Each
+   ``--variant "KEY=VALUE ..."`` (repeatable) is one more configuration timed in the same
+   rounds, with its ratio to the run's own; the mean contacts and constraint rows per env at the
+   end are printed beside each, e.g. on a GPU:
+
+    python bench/env_throughput.py --backend warp --device cuda --policy RUN --envs 16384 \
+        --variant robot.hand_geometry=capsules --variant physics.noslip_iterations=0 \
+        --variant robot.hand_drive=equalities
 """
 
 from __future__ import annotations
@@ -55,6 +69,7 @@ import time
 from pathlib import Path
 
 import torch
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from trainer.config import (
     EnvConfig,
@@ -62,12 +77,14 @@ from trainer.config import (
     check_device,
     dotted_overrides,
     load_env_config,
+    override,
     parse_sets,
 )
 from trainer.errors import TrainerError
 from trainer.objects import resolve_names
 from trainer.sim import make_backend
 from trainer.tasks import GraspTask, make_env
+from trainer.training.checkpoint import load_agent
 
 PAPER_STEPS_PER_S = 53_000
 """The paper's throughput: COM representation, training with PPO, one RTX A6000 (Isaac Gym)."""
@@ -139,6 +156,85 @@ class Stepper:
         self.raw_rates.append(env.num_envs * steps / (time.perf_counter() - start))
 
 
+class PolicyStepper(Stepper):
+    """``Stepper`` with the actions of a trained policy (deterministic), after ``advance``
+    untimed env steps: the timed blocks see the contacts of grasping, not of the reset
+    states."""
+
+    def __init__(self, env: GraspTask, actor: torch.nn.Module, steps: int, advance: int) -> None:
+        self.env, self.actor, self.steps = env, actor, steps
+        self.td = env.reset()
+        sync(env.device)
+        start = time.perf_counter()
+        self._act(1)  # compilation (torch.compile, Warp's kernels, the CUDA graph) timed alone
+        sync(env.device)
+        self.first_step_s = time.perf_counter() - start
+        self._act(max(advance - 1, 0))
+        sync(env.device)
+        self.env_rates, self.raw_rates = [], []
+
+    def _act(self, steps: int) -> None:
+        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            for _ in range(steps):
+                self.td = self.actor(self.td)
+                _, self.td = self.env.step_and_maybe_reset(self.td)
+
+    def block(self) -> None:
+        env = self.env
+        sync(env.device)
+        start = time.perf_counter()
+        self._act(self.steps)
+        sync(env.device)
+        self.env_rates.append(env.num_envs * self.steps / (time.perf_counter() - start))
+        start = time.perf_counter()
+        for _ in range(self.steps):
+            env.backend.step_held()
+        sync(env.device)
+        self.raw_rates.append(env.num_envs * self.steps / (time.perf_counter() - start))
+
+
+def policy_throughput(args: argparse.Namespace) -> None:
+    """Section 4: the run's env config and policy, the run's own physics and each variant's,
+    built together and timed in alternating rounds."""
+    try:
+        cfg, agent = load_agent(Path(args.policy), args.device)
+    except (TrainerError, FileNotFoundError) as exc:
+        raise SystemExit(f"env_throughput: --policy {args.policy}: {exc}") from None
+    n = int(args.envs.split(",")[0])
+    base = {"num_envs": n, "backend": args.backend, "device": args.device}
+    if args.data_dir:
+        base["data_dir"] = args.data_dir
+    configs = variants(args)
+    steppers: dict[str, PolicyStepper] = {}
+    for label, extra in configs:
+        env_cfg = override(cfg.env, {**base, **extra}, {})
+        steppers[label] = PolicyStepper(make_env(env_cfg), agent.actor, args.steps, args.advance)
+    for _ in range(args.rounds):
+        for stepper in steppers.values():
+            stepper.block()
+    first = configs[0][0]
+    print(f"{args.policy}: {cfg.env.task}, {len(resolve_names(cfg.env.objects, cfg.env.data_dir))}"
+          f" objects, repr {cfg.env.representation}, {n} envs, {args.backend} on {args.device}; "
+          f"{args.advance} policy steps, then {args.rounds} rounds of {args.steps}")
+    print(f"{'policy+env steps/s':>18} {'phys steps/s':>13} {'ratio':>6} {'1st step s':>10} "
+          f"{'contacts':>9} {'rows':>7} {'/ first':>8}  config")
+    for label, stepper in steppers.items():
+        env_rate = statistics.median(stepper.env_rates)
+        raw_rate = statistics.median(stepper.raw_rates)
+        load = stepper.env.backend.contact_load()
+        rel = 1.0 if label == first else paired(
+            steppers, first, label)
+        print(f"{env_rate:>18.0f} {raw_rate:>13.0f} {env_rate / raw_rate:>6.2f} "
+              f"{stepper.first_step_s:>10.2f} {load.get('contacts', float('nan')):>9.1f} "
+              f"{load.get('constraint rows', float('nan')):>7.1f} {rel:>8.2f}  {label}")
+        for message in stepper.env.backend.drain_warnings():
+            print(f"  warning: {message}")
+        stepper.env.close()
+    print("policy+env: the trained policy's deterministic action, then the env step with resets; "
+          "phys: step_held; contacts, rows: mean per env at the end (active contacts, constraint "
+          "rows); / first: the per-round median of env steps/s over the first configuration's")
+
+
 def task_config(args: argparse.Namespace, task: str, envs: int, rep: str, objects: str,
                 bin_objects: int, extra: dict | None = None) -> EnvConfig:
     """The config of one timed env; ``extra``: a variant's overrides (``variants``), merged
@@ -159,7 +255,7 @@ def task_config(args: argparse.Namespace, task: str, envs: int, rep: str, object
     return load_env_config(**overrides)
 
 
-def paired(steppers: dict, a: tuple, b: tuple) -> float:
+def paired(steppers: dict, a: object, b: object) -> float:
     """b's env steps/s over a's: the median of the per-round ratios (the blocks of a round ran
     back to back)."""
     return statistics.median(
@@ -168,8 +264,9 @@ def paired(steppers: dict, a: tuple, b: tuple) -> float:
 
 
 def variants(args: argparse.Namespace) -> list[tuple[str, dict]]:
-    """(label, overrides) of each configuration timed: the default or each ``--noslip`` value,
-    then ``--set``'s configuration if given."""
+    """(label, overrides) of each configuration timed: the default (with ``--policy``: the
+    run's own) or each ``--noslip`` value, then ``--set``'s configuration if given, then each
+    ``--variant``'s."""
     if args.noslip is None:
         out = [("default", {})]
     else:
@@ -177,6 +274,8 @@ def variants(args: argparse.Namespace) -> list[tuple[str, dict]]:
                for v in args.noslip.split(",")]
     if args.sets:
         out.append((" ".join(args.sets), dotted_overrides(parse_sets(args.sets))))
+    for text in args.variants:
+        out.append((text, dotted_overrides(parse_sets(text.split(), "--variant"))))
     return out
 
 
@@ -350,6 +449,13 @@ def main() -> None:
                         help="[physics] noslip_iterations, or a comma list to compare (cpu)")
     parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                         help="one more configuration to time beside the others (cpu; repeatable)")
+    parser.add_argument("--variant", dest="variants", action="append", default=[],
+                        metavar="'KEY=VALUE ...'",
+                        help="one more configuration per use (several KEY=VALUE in one string)")
+    parser.add_argument("--policy", default=None, metavar="RUN",
+                        help="time the run's env config driven by its trained policy (section 4)")
+    parser.add_argument("--advance", type=int, default=150,
+                        help="--policy: untimed policy steps before the timed blocks")
     parser.add_argument("--steps", type=int, default=20, help="env steps per timed block")
     parser.add_argument("--rounds", type=int, default=5, help="alternating env/physics blocks")
     parser.add_argument(
@@ -363,6 +469,19 @@ def main() -> None:
     parser.add_argument("--memory-bin-objects", type=int, default=10)
     args = parser.parse_args()
     torch.set_num_threads(1)
+    if args.policy is not None:
+        try:
+            check_device(args.device, f"--device {args.device}", "use --device cpu")
+            check_backend(args.backend)
+        except TrainerError as exc:
+            parser.error(str(exc))
+        args.envs = args.envs or ("256" if args.backend == "cpu" else
+                                  WARP_ENVS[torch.device(args.device).type].split(",")[-1])
+        try:
+            policy_throughput(args)
+        except TrainerError as exc:
+            raise SystemExit(f"env_throughput: {exc}") from None
+        return
     if args.backend == "cpu":
         args.tasks = args.tasks or "lift,bin"
         args.envs = args.envs or "256"

@@ -3,6 +3,10 @@
 # on a lent GPU machine, from the repository root, one call per part of .gpu-pack/carry/.
 #
 #   bash scripts/gpu-campaign.sh stage [PART...]   keep the carried part(s) for the next call
+#   bash scripts/gpu-campaign.sh bench             unpack, then time the physics in contact
+#                                                  (bench/env_throughput.py --policy, the run's
+#                                                  config and GPU_CAMPAIGN_BENCH's variants):
+#                                                  bench.log and the kernel cache in $OUT
 #   bash scripts/gpu-campaign.sh run               unpack every part, train the campaign's next
 #                                                  chunk, evaluate it, put the files in $OUT:
 #                                                  last.pt, chunk.tar (metrics.csv, config.json,
@@ -52,9 +56,24 @@ case "${1:-}" in
     cp "${parts[@]}" "$STAGE/parts/" || exit 1
     log "staged: $(ls "$STAGE/parts" | tr '\n' ' ')"
     exit 0 ;;
-  run) ;;
-  *) echo "usage: bash scripts/gpu-campaign.sh stage [PART...] | run" >&2; exit 2 ;;
+  run|bench) mode=$1 ;;
+  *) echo "usage: bash scripts/gpu-campaign.sh stage [PART...] | run | bench" >&2; exit 2 ;;
 esac
+
+# Warp's compiled kernels, so that the next call need not compile them: in pieces of 15 MB,
+# if they fit beside the rest (64 MiB, 8 files).
+return_kernels() {
+  if [ -n "${WARP_CACHE_PATH:-}" ] && [ -n "$(ls -A "$WARP_CACHE_PATH" 2>/dev/null)" ]; then
+    tar -C "$WARP_CACHE_PATH" -cf - . | xz -T0 -3 -c > "$STAGE/kcache.tar.xz"
+    size=$(stat -c %s "$STAGE/kcache.tar.xz")
+    room=$(( 63 * 1048576 - $(du -cb "$OUT"/* | tail -1 | cut -f1) ))
+    if [ "$size" -le "$room" ] && [ "$size" -le $(( 5 * PIECE )) ]; then
+      split -b "$PIECE" -d -a 1 "$STAGE/kcache.tar.xz" "$OUT/kcache.tar.xz."
+    else
+      log "kernel cache of $size bytes left behind (room for $room)"
+    fi
+  fi
+}
 
 if [ "$SITE" != none ]; then
   cp .gpu-pack/carry/part-* "$STAGE/parts/" 2>/dev/null
@@ -79,6 +98,18 @@ EOF
   # The config's data_dir, .gpu-pack/data, is the unpacked data (here already, where packed).
   mkdir -p .gpu-pack
   { [ -d .gpu-pack/data ] && [ ! -L .gpu-pack/data ]; } || ln -sfn "$STAGE/data" .gpu-pack/data
+fi
+if [ "$mode" = bench ]; then
+  # What the physics costs in contact: the campaign's policy drives the run's own config and each
+  # variant at 16,384 envs (bench/env_throughput.py --policy), until the deadline.
+  args=${GPU_CAMPAIGN_BENCH:-"--envs 16384 --advance 40 --steps 10 --rounds 2 --variant robot.hand_geometry=capsules --variant physics.noslip_iterations=0"}
+  log "bench: $args"
+  # shellcheck disable=SC2086
+  timeout -s INT $(( DEADLINE - ($(date +%s) - start) - 30 )) "$PY" bench/env_throughput.py \
+    --backend "${GPU_CAMPAIGN_BENCH_BACKEND:-warp}" --device "${GPU_CAMPAIGN_BENCH_DEVICE:-cuda}" --policy "$RUN" $args 2>&1 | grep -v -i warning | tee "$OUT/bench.log"
+  return_kernels
+  log "done: $(ls "$OUT" | tr '\n' ' ')"
+  exit 0
 fi
 steps=()
 [ -z "${GPU_CAMPAIGN_STEPS:-}" ] || steps=(--steps "$GPU_CAMPAIGN_STEPS")
@@ -164,16 +195,5 @@ EOF
 small=(metrics.csv config.json chunk.json)
 [ -f "$OUT/eval.json" ] && small+=(eval.json)
 tar -C "$OUT" -cf "$OUT/chunk.tar" "${small[@]}" && (cd "$OUT" && rm "${small[@]}")
-# Warp's compiled kernels, so that the next chunk need not compile them: in pieces of 15 MB,
-# if they fit beside the rest (64 MiB, 8 files).
-if [ -n "${WARP_CACHE_PATH:-}" ] && [ -n "$(ls -A "$WARP_CACHE_PATH" 2>/dev/null)" ]; then
-  tar -C "$WARP_CACHE_PATH" -cf - . | xz -T0 -3 -c > "$STAGE/kcache.tar.xz"
-  size=$(stat -c %s "$STAGE/kcache.tar.xz")
-  room=$(( 63 * 1048576 - $(du -cb "$OUT"/* | tail -1 | cut -f1) ))
-  if [ "$size" -le "$room" ] && [ "$size" -le $(( 5 * PIECE )) ]; then
-    split -b "$PIECE" -d -a 1 "$STAGE/kcache.tar.xz" "$OUT/kcache.tar.xz."
-  else
-    log "kernel cache of $size bytes left behind (room for $room)"
-  fi
-fi
+return_kernels
 log "done: $(ls "$OUT" | tr '\n' ' ')"

@@ -126,6 +126,12 @@ def test_resting_objects_agree_with_mujoco_c(builtin_data: Config, objects: str)
     for traj in (a, b):
         assert (traj[:, :, pos] - traj[0, :, pos]).norm(dim=-1).amax() < 2.5e-3
     assert (a[:, :, pos] - b[:, :, pos]).norm(dim=-1).amax() < 2.5e-3
+    # Both count the resting objects' contacts (bench/env_throughput.py --policy prints them):
+    # at least one per env, each with its constraint rows (the pipelines' counts may differ).
+    for env in (cpu, warp):
+        load = env.backend.contact_load()
+        assert 1.0 <= load["contacts"] <= 32.0, load
+        assert load["constraint rows"] >= load["contacts"], load
 
 
 def test_each_world_simulates_its_own_object(

@@ -124,6 +124,17 @@ class SimBackend(ABC):
         benchmarks; empty if the backend does not say."""
         return {}
 
+    def contact_load(self, sample: int = 32) -> dict[str, float]:
+        """Mean active contacts and constraint rows per env in the current state (the
+        physics' cost grows with both), over all envs or the first ``sample``, for benchmarks;
+        empty if the backend cannot say. This default forward-computes ``snapshot``s."""
+        try:
+            snaps = [self.snapshot(i) for i in range(min(sample, self.num_envs))]
+        except NotImplementedError:
+            return {}
+        return {"contacts": sum(d.ncon for _, d in snaps) / len(snaps),
+                "constraint rows": sum(d.nefc for _, d in snaps) / len(snaps)}
+
     @abstractmethod
     def state_dict(self) -> dict:
         """Everything needed to continue the simulation exactly (for checkpoints)."""

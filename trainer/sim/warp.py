@@ -401,6 +401,12 @@ class MujocoWarpBackend(SimBackend):
             view.copy_(torch.as_tensor(state[name]).to(view.device))
 
     # --- models ------------------------------------------------------------------------------
+    def contact_load(self, sample: int = 32) -> dict[str, float]:
+        """Every world's (``sample`` unused): the contacts and constraint rows of the last
+        substep."""
+        return {"contacts": float(wp.to_torch(self.d.nacon)[0]) / self.num_envs,
+                "constraint rows": float(wp.to_torch(self.d.nefc).float().mean())}
+
     def memory(self) -> dict[str, int]:
         """``model`` and ``data``: bytes of the Warp arrays on the device."""
         return {"model": _array_bytes(self.m), "data": _array_bytes(self.d)}

@@ -1,0 +1,49 @@
+"""bench/env_throughput.py --policy: the run's own env config driven by its trained policy, one
+more configuration per --variant, timed in the same rounds, with each one's contact load."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+from geomprep.config import Config
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def bench(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(ROOT / "bench" / "env_throughput.py"), *args],
+                          capture_output=True, text=True, cwd=ROOT, timeout=600)
+
+
+def test_policy_driven_rows_per_variant(builtin_data: Config, tmp_path: Path) -> None:
+    from trainer.config import load_train_config
+    from trainer.ppo import train
+
+    cfg = load_train_config(
+        env={"num_envs": 4, "objects": "builtin_box", "representation": "bbox",
+             "data_dir": builtin_data.data_dir, "max_steps": 12, "compile": False},
+        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
+             "hidden": (16, 16)},
+        run={"total_steps": 32, "checkpoint_every": 1, "seed": 0},
+    )
+    run = train(cfg, tmp_path / "run", progress=False)
+    done = bench("--policy", str(run.path), "--envs", "3", "--advance", "4", "--steps", "2",
+                 "--rounds", "2", "--variant", "physics.noslip_iterations=0")
+    assert done.returncode == 0, done.stderr[-2000:]
+    lines = done.stdout.splitlines()
+    assert lines[0].startswith(f"{run.path}: lift, 1 objects, repr bbox, 3 envs, cpu on cpu")
+    rows = [line.split() for line in lines[2:4]]
+    assert rows[0][-1] == "default" and rows[1][-1] == "physics.noslip_iterations=0"
+    assert float(rows[0][-2]) == 1.0  # the first configuration against itself
+    for row in rows:
+        env_rate, phys_rate, contacts = float(row[0]), float(row[1]), float(row[4])
+        assert 0 < env_rate < phys_rate  # the env step does the physics and more
+        assert contacts >= 1.0  # the box rests on the table in every env, at least
+
+
+def test_unknown_run_or_key_is_one_line(tmp_path: Path) -> None:
+    done = bench("--policy", str(tmp_path / "nowhere"))
+    assert done.returncode != 0 and "Traceback" not in done.stderr
+    assert "--policy" in done.stderr.strip().splitlines()[-1]
