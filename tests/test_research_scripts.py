@@ -1,6 +1,7 @@
 """Research scripts: scripts/home_heights.py (the per-object home heights of ``[robot]
-home_above_objects``), scripts/early_lifts.py (what the initial policy's low lifts are) and
-scripts/policy_probe.py (what a trained policy does over an episode)."""
+home_above_objects``), scripts/early_lifts.py (what the initial policy's low lifts are),
+scripts/policy_probe.py (what a trained policy does over an episode) and
+scripts/object_curriculum.py (each object's curriculum target over a run)."""
 
 from __future__ import annotations
 
@@ -71,3 +72,42 @@ def test_policy_probe_follows_an_episode(builtin_data: Config, tmp_path: Path) -
     lines = policy_probe.main([str(run.path), "--envs", "3", "--every", "5"])
     assert lines[1].startswith("action palm_z") and len(lines) == 2 + 3 + 1 + 1  # 0, 5, 10, 11
     assert lines[-1].startswith("earned") and "G_0.998" in lines[-1]
+
+
+def test_object_curriculum_reads_each_kept_checkpoint(builtin_data: Config, tmp_path: Path) -> None:
+    """scripts/object_curriculum.py: one row per kept checkpoint (every iteration here), each
+    object's target within the curriculum's range and its held rate a fraction; a run without a
+    per-object curriculum is a one-line error."""
+    import json
+
+    import object_curriculum
+
+    from trainer.config import config_dict, load_train_config
+    from trainer.ppo import train
+
+    cfg = load_train_config(
+        env={"num_envs": 4, "objects": "builtin_box,builtin_dice", "representation": "bbox",
+             "data_dir": builtin_data.data_dir, "max_steps": 6, "compile": False,
+             "reward": {"h_bar_start": 0.03, "h_bar_increment": 0.02,
+                        "curriculum_per_object": True}},
+        ppo={"frames_per_env": 6, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
+             "hidden": (16, 16)},
+        run={"total_steps": 72, "checkpoint_every": 1, "seed": 0},
+    )
+    run = train(cfg, tmp_path / "run", progress=False)
+    rows = object_curriculum.main([str(run.path), "--csv", str(tmp_path / "c.csv")])
+    assert [r["iteration"] for r in rows] == [1, 2, 3]
+    assert rows[-1]["env_steps"] == 72
+    for row in rows:
+        for name in ("builtin_box", "builtin_dice"):
+            assert 0.03 <= row[name] <= 0.2
+            held = row[f"{name}_held"]
+            assert held != held or 0.0 <= held <= 1.0  # nan before the object's first episode
+    assert (tmp_path / "c.csv").read_text().startswith("iteration,env_steps,minutes,builtin_box,")
+    assert (tmp_path / "c.png").stat().st_size > 1000
+
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    (plain / "config.json").write_text(json.dumps(config_dict(load_train_config())))
+    with pytest.raises(SystemExit, match="not a per-object curriculum run"):
+        object_curriculum.main([str(plain)])
