@@ -102,7 +102,7 @@ fi
 if [ "$mode" = bench ]; then
   # What the physics costs in contact: the campaign's policy drives the run's own config and each
   # variant at 16,384 envs (bench/env_throughput.py --policy), until the deadline.
-  args=${GPU_CAMPAIGN_BENCH:-"--envs 16384 --advance 40 --steps 10 --rounds 2 --variant robot.hand_geometry=capsules --variant physics.noslip_iterations=0"}
+  args=${GPU_CAMPAIGN_BENCH:-"--envs 16384 --advance 30 --steps 8 --rounds 2 --variant physics.noslip_iterations=0 --variant physics.noslip_iterations=2 --variant robot.hand_geometry=capsules"}
   log "bench: $args"
   # shellcheck disable=SC2086
   timeout -s INT $(( DEADLINE - ($(date +%s) - start) - 30 )) "$PY" bench/env_throughput.py \
