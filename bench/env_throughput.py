@@ -140,13 +140,18 @@ class Stepper:
         self.env_rates: list[float] = []
         self.raw_rates: list[float] = []
 
-    def block(self) -> None:
-        env, steps = self.env, len(self.actions)
-        sync(env.device)
-        start = time.perf_counter()
+    def _env_steps(self) -> int:
+        """One timed block's env steps; returns how many."""
         for action in self.actions:
             self.td["action"] = action
-            _, self.td = env.step_and_maybe_reset(self.td)
+            _, self.td = self.env.step_and_maybe_reset(self.td)
+        return len(self.actions)
+
+    def block(self) -> None:
+        env = self.env
+        sync(env.device)
+        start = time.perf_counter()
+        steps = self._env_steps()
         sync(env.device)
         self.env_rates.append(env.num_envs * steps / (time.perf_counter() - start))
         start = time.perf_counter()
@@ -179,18 +184,9 @@ class PolicyStepper(Stepper):
                 self.td = self.actor(self.td)
                 _, self.td = self.env.step_and_maybe_reset(self.td)
 
-    def block(self) -> None:
-        env = self.env
-        sync(env.device)
-        start = time.perf_counter()
+    def _env_steps(self) -> int:
         self._act(self.steps)
-        sync(env.device)
-        self.env_rates.append(env.num_envs * self.steps / (time.perf_counter() - start))
-        start = time.perf_counter()
-        for _ in range(self.steps):
-            env.backend.step_held()
-        sync(env.device)
-        self.raw_rates.append(env.num_envs * self.steps / (time.perf_counter() - start))
+        return self.steps
 
 
 def policy_throughput(args: argparse.Namespace) -> None:
@@ -222,8 +218,7 @@ def policy_throughput(args: argparse.Namespace) -> None:
         env_rate = statistics.median(stepper.env_rates)
         raw_rate = statistics.median(stepper.raw_rates)
         load = stepper.env.backend.contact_load()
-        rel = 1.0 if label == first else paired(
-            steppers, first, label)
+        rel = paired(steppers, first, label)  # the first against itself: 1.0
         print(f"{env_rate:>18.0f} {raw_rate:>13.0f} {env_rate / raw_rate:>6.2f} "
               f"{stepper.first_step_s:>10.2f} {load.get('contacts', float('nan')):>9.1f} "
               f"{load.get('constraint rows', float('nan')):>7.1f} {rel:>8.2f}  {label}")
