@@ -75,3 +75,13 @@ def test_videos_under_results_are_not_ignored_by_git() -> None:
 
     assert not ignored("results/some-run/grasp.mp4")
     assert ignored("runs/some-run/grasp.mp4") and ignored("grasp.mp4")
+
+
+def test_reports_and_logs_hold_only_relative_paths() -> None:
+    """Committed results name files relative to the repository, never a machine's directories."""
+    absolute = re.compile(r"(?<![\w.])/(?:work|tmp|home|root|Users)/")
+    offenders = [path.relative_to(ROOT).as_posix()
+                 for path in sorted(RESULTS.rglob("*"))
+                 if path.suffix in {".md", ".log", ".csv", ".json", ".toml", ".txt"}
+                 and absolute.search(path.read_text(errors="replace"))]
+    assert not offenders, f"absolute paths in {offenders}"
