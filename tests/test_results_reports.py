@@ -32,27 +32,28 @@ LOST = {
 kept either); each report says so."""
 
 
-def named_media(readme: Path, *, in_code: bool) -> set[str]:
+def named_media(readme: Path) -> set[str]:
     """The media files a report names, as paths from the repository root: every ``results/...``
     path, and outside code blocks (where commands write to the working directory) every path
     relative to the report's folder."""
     text = readme.read_text()
-    prose = CODE.sub("", text)
-    names = set()
-    for name in MEDIA.findall(text if in_code else prose):
-        if name.startswith("results/"):
-            names.add(name)
-        elif not in_code:
+    names = {name for name in MEDIA.findall(text) if name.startswith("results/")}
+    for name in MEDIA.findall(CODE.sub("", text)):
+        if not name.startswith("results/"):
             names.add((readme.parent / name).resolve().relative_to(ROOT).as_posix())
     return names
 
 
-def test_every_video_and_figure_a_report_names_is_committed() -> None:
+def media_by_report() -> dict[Path, set[str]]:
+    """Each results report (the index and every folder's README) and the media it names."""
     reports = sorted(RESULTS.glob("*/README.md")) + [RESULTS / "README.md"]
-    assert len(reports) > 20
-    named: set[str] = set()
-    for readme in reports:
-        named |= named_media(readme, in_code=False) | named_media(readme, in_code=True)
+    return {readme: named_media(readme) for readme in reports}
+
+
+def test_every_video_and_figure_a_report_names_is_committed() -> None:
+    by_report = media_by_report()
+    assert len(by_report) > 20
+    named = set().union(*by_report.values())
     missing = sorted(n for n in named if not (ROOT / n).is_file() and n not in LOST)
     assert not missing, f"reports name media that are not in the repository: {missing}"
     assert named >= LOST, "a lost video is no longer named: drop it from LOST"
@@ -60,9 +61,9 @@ def test_every_video_and_figure_a_report_names_is_committed() -> None:
 
 
 def test_reports_say_which_videos_were_lost() -> None:
+    by_report = media_by_report()
     for name in sorted(LOST):
-        readers = [r for r in RESULTS.glob("*/README.md")
-                   if name in {*named_media(r, in_code=False), *named_media(r, in_code=True)}]
+        readers = [readme for readme, names in by_report.items() if name in names]
         assert any("not in the repository" in r.read_text() for r in readers), name
 
 
