@@ -26,7 +26,10 @@ command -v "$PYTHON" >/dev/null || fail "no $PYTHON found: install Python 3.11 o
 # Debian package -> how to tell that it is there. open3d loads libusb, OpenGL/EGL and OpenMP at
 # import even when used headless; the SDF lookup's CPU kernel is C compiled with cc; the
 # trainer's torch.compile needs a C++ compiler and the Python headers; venv needs ensurepip.
-have_lib() { { /sbin/ldconfig -p 2>/dev/null || ldconfig -p 2>/dev/null; } | grep -q "$1"; }
+# The linker cache is read once: piping `ldconfig -p` into `grep -q` under pipefail fails now and
+# then (grep exits at the first match, ldconfig dies of SIGPIPE) and named present libraries missing.
+libs=$(/sbin/ldconfig -p 2>/dev/null || ldconfig -p 2>/dev/null || true)
+have_lib() { grep -qF "$1" <<<"$libs"; }
 missing=()
 have_lib 'libusb-1.0.so.0' || missing+=(libusb-1.0-0)
 have_lib 'libGL.so.1' || missing+=(libgl1)
