@@ -26,7 +26,12 @@ or its ``key=value`` overrides) and one column per ``--set`` / ``--grid`` key (t
 what friction times the grip allows, and the grip and that ratio again with the contacts'
 forces when the pull ended, and the least and most any contact then used of its friction
 cone) and adds ``held_end`` and ``trainer.grasps.families.HOLD_KEYS`` (medians) to the table
-and the CSV.
+and the CSV; ``--hold-out FILE`` writes every probed trial's measurements (one row each).
+
+``--seed`` takes several seeds (``0,1,2`` or ``0-4``): each configuration and family is measured
+once per seed (the CSV's ``seed`` column), and with ``--hold`` a last table pools every held
+trial per object over the seeds: the pull ratio's median and how many reach 0.8 (issue 33's
+pull target), the slip speed and the grip while holding and when the pull ended.
 """
 
 from __future__ import annotations
@@ -34,6 +39,8 @@ from __future__ import annotations
 import argparse
 import csv
 import itertools
+import math
+import statistics
 import sys
 import time
 from dataclasses import asdict
@@ -120,16 +127,82 @@ def check_not_fixed(families: list[tuple[str, str]], configs: list[dict[str, Any
 
 HOLD_COLUMNS = ("held_end", *HOLD_KEYS)
 """``--hold``'s columns (``trainer.grasps.measure``)."""
+TRIAL_COLUMNS = ("object", "family", "variant", "config", "seed", "held", "slip_mm_s", "grip_n",
+                 "capacity_n", "weight_n", "pull_n", "pull_ratio", "slip_grip_n",
+                 "slip_capacity_n", "slip_pull_ratio", "slip_cone_min", "slip_cone_max")
+"""``--hold-out``'s columns: one probed trial each (``trainer.grasps.hold.Hold``)."""
+PULL_TARGET = 0.8
+"""Issue 33: a held object resists >= 80 % of the pull friction times its grip allows."""
+
+
+def parse_seeds(spec: str) -> list[int]:
+    """``3``, ``0,1,2`` or ``0-4`` -> the seeds, in order; anything else a one-line error."""
+    seeds: list[int] = []
+    try:
+        for part in (p.strip() for p in spec.split(",") if p.strip()):
+            first, dash, last = part.partition("-")
+            seeds += list(range(int(first), int(last) + 1)) if dash else [int(part)]
+    except ValueError:
+        seeds = []
+    if not seeds or min(seeds) < 0:
+        raise UserError(f"--seed {spec!r}: give seeds >= 0 as 3, 0,1,2 or 0-4")
+    return list(dict.fromkeys(seeds))
+
+
+def trial_rows(rows: list[dict]) -> list[dict]:
+    """One ``TRIAL_COLUMNS`` row per probed trial of ``rows`` (their ``holds``)."""
+    out = []
+    for row in rows:
+        for h in row.get("holds", ()):
+            trial = {k: row[k] for k in ("object", "family", "variant", "config", "seed")}
+            trial.update({k: getattr(h, k) for k in TRIAL_COLUMNS[5:]})
+            out.append({k: round(v, 4) if isinstance(v, float) else v for k, v in trial.items()})
+    return out
+
+
+def pooled_holds(trials: list[dict]) -> list[dict]:
+    """Per configuration, family, variant and object, over every seed: the held trials, the
+    pull ratio's median and how many reach ``PULL_TARGET``, and the medians of the slip speed,
+    the grip while holding and when the pull ended, and the ratio on the latter."""
+    groups: dict[tuple, list[dict]] = {}
+    for t in trials:
+        groups.setdefault(tuple(t[k] for k in ("config", "family", "variant", "object")),
+                          []).append(t)
+
+    def median(values: list[dict], key: str) -> float | str:
+        finite = [v[key] for v in values if not math.isnan(v[key])]
+        return round(statistics.median(finite), 3) if finite else ""
+
+    out = []
+    for (config, fam, variant, obj), group in groups.items():
+        held = [t for t in group if t["held"]]
+        ratios = [t["pull_ratio"] for t in held if not math.isnan(t["pull_ratio"])]
+        out.append({"config": config, "family": fam, "variant": variant, "object": obj,
+                    "seeds": len({t["seed"] for t in group}), "probed": len(group),
+                    "held": len(held), "pull_ratio": median(held, "pull_ratio"),
+                    "at_target": sum(r >= PULL_TARGET for r in ratios),
+                    "slip_mm_s": median(held, "slip_mm_s"), "grip_n": median(held, "grip_n"),
+                    "slip_grip_n": median(held, "slip_grip_n"),
+                    "slip_pull_ratio": median(held, "slip_pull_ratio")})
+    return out
 
 
 def write_csv(path: Path, rows: list[dict], keys: list[str], hold: bool = False) -> None:
-    """The rows as a CSV (``COLUMNS``, ``variant``, ``config``, ``keys``, then with ``hold``
-    ``HOLD_COLUMNS``), atomically."""
-    fields = [*COLUMNS, "variant", "config", *keys, *(HOLD_COLUMNS if hold else ())]
+    """The rows as a CSV (``COLUMNS``, ``variant``, ``config``, ``seed``, ``keys``, then with
+    ``hold`` ``HOLD_COLUMNS``), atomically."""
+    fields = [*COLUMNS, "variant", "config", "seed", *keys, *(HOLD_COLUMNS if hold else ())]
     with atomic_path(path) as tmp, open(tmp, "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=fields, extrasaction="ignore")
         writer.writeheader()
         writer.writerows(rows)
+
+
+def write_trials(path: Path, trials: list[dict]) -> None:
+    """``--hold-out``: the probed trials as a CSV (``TRIAL_COLUMNS``), atomically."""
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=TRIAL_COLUMNS)
+        writer.writeheader()
+        writer.writerows(trials)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -142,7 +215,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="families, comma-separated, each optionally FAMILY:VARIANT [top]")
     parser.add_argument("--backend", choices=("cpu", "warp"), default=None, help="[cpu]")
     parser.add_argument("--device", default=None, help="torch / Warp device [cpu]")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the initial states [0]")
+    parser.add_argument("--seed", default="0",
+                        help="seed(s) of the initial states: 3, 0,1,2 or 0-4 [0]")
     parser.add_argument("--data-dir", type=Path, default=None, help="[./data]")
     parser.add_argument("--config", type=Path, default=None, help="TOML config of every run")
     parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
@@ -151,6 +225,8 @@ def main(argv: list[str] | None = None) -> None:
                         metavar="KEY=V1,V2", help="one configuration per value (repeatable)")
     parser.add_argument("--hold", action="store_true",
                         help="probe the held trials' slip and pull (cpu backend)")
+    parser.add_argument("--hold-out", type=Path, default=None,
+                        help="with --hold: CSV of every probed trial's measurements")
     args = parser.parse_args(argv)
     try:
         run(args)
@@ -170,6 +246,9 @@ def run(args: argparse.Namespace) -> None:
     if args.hold and args.backend == "warp":
         raise UserError("--hold probes states copied out of the cpu backend: drop --hold or "
                         "use --backend cpu")
+    if args.hold_out is not None and not args.hold:
+        raise UserError("--hold-out writes the hold probe's trials: add --hold")
+    seeds = parse_seeds(str(args.seed))
     families = parse_families(args.family)
     configs = configurations(args.sets, args.grids)
     check_not_fixed(families, configs)
@@ -190,19 +269,19 @@ def run(args: argparse.Namespace) -> None:
     totals: dict[str, tuple[int, int]] = {}
     for config in configs:
         name = label(config)
-        for fam, variant_name in families:
+        for (fam, variant_name), seed in itertools.product(families, seeds):
             variant = family_variants(fam, [variant_name])[variant_name]
             start = time.perf_counter()
-            batch = measure(fam, variant_name, variant, objects, args.trials, args.seed,
+            batch = measure(fam, variant_name, variant, objects, args.trials, seed,
                             args.config, hold=args.hold, **{**env, **overrides(config)})
             seconds = time.perf_counter() - start
             for row in batch:
-                row.update(config=name, **{k: config.get(k, "") for k in keys})
+                row.update(config=name, seed=seed, **{k: config.get(k, "") for k in keys})
             rows += batch
             lifted, trials = (sum(r[k] for r in batch) for k in ("lifted", "trials"))
             done = totals.get(name, (0, 0))
             totals[name] = (done[0] + lifted, done[1] + trials)
-            print(f"\n### {name}: {fam} {variant_name} ({lifted}/{trials} lifted, "
+            print(f"\n### {name}: {fam} {variant_name}, seed {seed} ({lifted}/{trials} lifted, "
                   f"{seconds:.0f} s)\n")
             extra = HOLD_COLUMNS if args.hold else ()
             print("| object | lifted | dropped | no grip | pushed |"
@@ -214,6 +293,20 @@ def run(args: argparse.Namespace) -> None:
             sys.stdout.flush()
             if args.out is not None:
                 write_csv(args.out, rows, keys, args.hold)
+            if args.hold_out is not None:
+                write_trials(args.hold_out, trial_rows(rows))
+
+    if args.hold:
+        print(f"\n## held trials pooled over seeds {','.join(map(str, seeds))} (pull ratio: "
+              f"(weight + pull) / friction x the grip while holding; target {PULL_TARGET})\n")
+        print("| config | family:variant | object | held / probed | pull ratio (median) | "
+              f">= {PULL_TARGET} | slip mm/s | grip N (hold / at slip) | ratio at slip |")
+        print("|---|---|---|---:|---:|---:|---:|---:|---:|")
+        for p in pooled_holds(trial_rows(rows)):
+            print(f"| {p['config']} | {p['family']}:{p['variant']} | {p['object']} | "
+                  f"{p['held']} / {p['probed']} | {p['pull_ratio']} | {p['at_target']} | "
+                  f"{p['slip_mm_s']} | {p['grip_n']} / {p['slip_grip_n']} | "
+                  f"{p['slip_pull_ratio']} |")
 
     base = totals[label(configs[0])][0]
     print("\n## summary (lifted of all trials; ratio to the baseline, measured in this run)\n")

@@ -42,6 +42,26 @@ def test_values_parse_as_toml_and_bare_words_as_strings() -> None:
         graspability.configurations(["robot.hand_geometry"], [])
 
 
+def test_seeds_parse_and_held_trials_pool_over_them() -> None:
+    assert graspability.parse_seeds("0-2,5") == [0, 1, 2, 5]
+    assert graspability.parse_seeds("3,3") == [3]
+    nan = float("nan")
+
+    def trial(seed: int, held: bool, ratio: float, slip_ratio: float = 0.9) -> dict:
+        return {"config": "baseline", "family": "pinch", "variant": "press6+turn",
+                "object": "062_dice", "seed": seed, "held": held, "pull_ratio": ratio,
+                "slip_mm_s": 0.01, "grip_n": 20.0, "slip_grip_n": 25.0,
+                "slip_pull_ratio": slip_ratio}
+
+    trials = [trial(0, True, 0.7), trial(0, True, 1.2), trial(1, True, 0.9, nan),
+              trial(1, False, 3.0), trial(2, True, nan)]
+    (pooled,) = graspability.pooled_holds(trials)
+    # Three seeds, five probed, four held; a dropped trial's ratio and a NaN count for nothing.
+    assert (pooled["seeds"], pooled["probed"], pooled["held"]) == (3, 5, 4)
+    assert pooled["pull_ratio"] == 0.9 and pooled["at_target"] == 2
+    assert pooled["slip_pull_ratio"] == 0.9 and pooled["grip_n"] == 20.0
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -49,6 +69,8 @@ def test_values_parse_as_toml_and_bare_words_as_strings() -> None:
         (["--family", "pinch:squeeze"], "error: unknown variant 'squeeze' of grasp family"),
         (["--objects", "999_nothing"], "error: "),
         (["--hold", "--backend", "warp"], "error: --hold probes states copied out of the cpu"),
+        (["--seed", "1-x"], "error: --seed '1-x': give seeds >= 0 as 3, 0,1,2 or 0-4"),
+        (["--hold-out", "trials.csv"], "error: --hold-out writes the hold probe's trials: add"),
         (["--set", "robot.hand_geometry=spheres"],
          'error: [robot] hand_geometry = "spheres": must be one of "capsules", "hulls"'),
         # A key the chosen variant fixes itself would leave the configurations identical.

@@ -189,6 +189,44 @@ def test_pinch_family_runs_and_writes_rows(builtin_data: Config, tmp_path: Path,
     ]
 
 
+def test_turned_pinch_rolls_the_lifted_hand_about_the_squeeze(builtin_data: Config) -> None:
+    """``pinch:press6+turn``: after the lift the commanded palm turns -90 degrees about the
+    world's horizontal squeeze direction (the hand is the same pinch until then), within its
+    extra ``turn_steps`` actions."""
+    import math
+
+    from tensordict import TensorDict
+
+    from geomgrasp.rotations import matrix_to_axis_angle
+    from trainer.config import load_env_config
+    from trainer.grasps.runner import episode_config
+    from trainer.tasks import make_env
+
+    script = family("pinch").variants["press6+turn"].script
+    plain = dataclasses.replace(script, turn=0.0, turn_steps=0)
+    assert script.total_steps == plain.total_steps + script.turn_steps > plain.total_steps
+    cfg = load_env_config(num_envs=2, objects="builtin_dice", representation="com",
+                          data_dir=builtin_data.data_dir)
+    env = make_env(episode_config(cfg, script), seed=3)
+    env.reset()
+    plan: dict = {}
+    lift_end = script.total_steps - script.turn_steps - script.hold_steps
+    for step in range(script.total_steps):
+        if step == lift_end:  # lifted, not yet turned: the plain pinch's orientation
+            before = env.state["target_rot"].clone()
+            assert torch.allclose(before, plan["rot"], atol=1e-4)
+        action = script.action(env, step, plan)
+        env.step(TensorDict({"action": action}, batch_size=env.batch_size))
+    after = env.state["target_rot"]
+    env.close()
+    assert torch.allclose(after, plan["rot_turned"], atol=1e-4)
+    turn = matrix_to_axis_angle(after @ before.transpose(1, 2))  # (E, 3) world axis x angle
+    angle = turn.norm(dim=-1)
+    assert torch.allclose(angle, torch.full_like(angle, math.pi / 2), atol=1e-3)
+    axis = turn / angle[:, None]
+    assert axis[:, 2].abs().max() < 1e-3  # a horizontal axis: the squeeze direction
+
+
 def test_hold_probe_measures_a_held_grasp_and_a_free_fall(builtin_data: Config) -> None:
     """``measure(..., hold=True)``: a top grasp still lifted at its end is probed: it slips
     slowly, the hand presses on it, and a growing downward pull makes it slip before the pull's

@@ -172,6 +172,9 @@ FAMILIES: dict[str, Family] = {
                 replace(_PINCH, clearance=-0.006, follow=True, handle=True)),
             "noslip": Variant(_PINCH, NOSLIP),
             "press6+noslip": Variant(replace(_PINCH, clearance=-0.006), NOSLIP),
+            # Rolled -90 degrees about the squeeze once lifted: the load leaves the flexion
+            # servos (results/hold-turned-2026-11-26/).
+            "press6+turn": Variant(replace(_PINCH, clearance=-0.006, turn=-90.0, turn_steps=30)),
             "press6+handle+noslip": Variant(
                 replace(_PINCH, clearance=-0.006, handle=True), NOSLIP),
             "middle+noslip": Variant(replace(_PINCH, middle="index"), NOSLIP),
@@ -291,7 +294,9 @@ def measure(
 
     ``hold`` (CPU backend): each trial that ends the script lifted is probed by
     ``hold.measure_hold``; each row gains ``held_end`` (how many the hand held through the
-    probe's hold) and the medians of ``HOLD_KEYS`` over those (empty without such a trial)."""
+    probe's hold) and the medians of ``HOLD_KEYS`` over those (empty without such a trial),
+    and ``holds``: that object's probed trials (``hold.Hold``, held or not) for a caller that
+    pools them (not a CSV column)."""
     from trainer.config import check_device, load_env_config
     from trainer.grasps.outcomes import outcome_rows
     from trainer.objects import resolve_names
@@ -352,6 +357,7 @@ def _add_hold_columns(rows: list[dict], names: Sequence[str], ids: Any,
             continue
         mine = [h for i, h in holds.items() if int(ids[i]) == k and h.held]
         row = by_name[name]
+        row["holds"] = [h for i, h in sorted(holds.items()) if int(ids[i]) == k]
         row["held_end"] = len(mine)
         for key in HOLD_KEYS:  # ``Hold`` fields and properties of the same names
             values = [v for v in (getattr(h, key) for h in mine) if not math.isnan(v)]

@@ -22,8 +22,13 @@ dice, the knife, the tuna can; the plate at its rim). Measured in results/script
 * **The plate.** Wider than the hand opens (26 cm): the pinch point goes to its rim on the side
   toward the robot, ``rim_inset`` inside its outer radius, the thumb outside (sliding under the
   rim's lip) and the index inside, squeezing radially.
+* **Turn** (optional, ``turn`` degrees, after the lift): the held hand rolled about the squeeze
+  direction, so that the fingers' flexion planes, which the lift's load lies in, turn toward the
+  horizontal; the target's weight (and the hold probe's pull) then loads the pads' friction
+  along the flexion joints' axes, not the position servos (measured in
+  results/hold-turned-2026-11-26/).
 * Phases: approach above the pinch pose (hand open), descend, close, settle, lift ``lift``,
-  hold 1 s.
+  (turn), hold 1 s.
 """
 
 from __future__ import annotations
@@ -35,7 +40,7 @@ import mujoco
 import numpy as np
 import torch
 
-from geomgrasp.rotations import quat_to_matrix
+from geomgrasp.rotations import axis_angle_to_matrix, quat_to_matrix
 from trainer.grasps.geometry import narrowest_horizontal, ramp, steer, target_box
 from trainer.robots import sih
 from trainer.tasks import GraspTask
@@ -75,6 +80,10 @@ class Pinch:
     the table holds the tips down)."""
     rim_inset: float = 0.015
     """Plate: pinch point this far inside the rim's outer radius."""
+    turn: float = 0.0
+    """Degrees the lifted hand rolls about the squeeze direction before the hold (0: none)."""
+    turn_steps: int = 0
+    """Actions of the turn (the rotation command moves at most ``rot_step`` per action)."""
     handle: bool = False
     """Long flat objects: pinch the middle of the thicker half (the knife's handle) instead of
     the bounding box's centre."""
@@ -85,7 +94,7 @@ class Pinch:
     @property
     def total_steps(self) -> int:
         return (self.approach_steps + self.descend_steps + self.close_steps + self.settle_steps
-                + self.lift_steps + self.hold_steps)
+                + self.lift_steps + self.turn_steps + self.hold_steps)
 
     @property
     def close_window(self) -> tuple[int, int]:
@@ -121,6 +130,7 @@ class Pinch:
         t1 = t0 + self.descend_steps
         t2 = t1 + self.close_steps
         t3 = t2 + self.settle_steps
+        t4 = t3 + self.lift_steps
         frac = ramp(step, t1, self.close_steps)
         k = int(round(frac * (len(plan["fracs"]) - 1)))
         goal[:, 2] = plan["height"][:, k]
@@ -133,8 +143,8 @@ class Pinch:
         act = torch.tensor(self.joints(frac), dtype=torch.float32)
         hand = 2 * (act - env.robot.hand.open) / (env.robot.hand.closed - env.robot.hand.open) - 1
         rate = self.lift_rate if step >= t3 else 1.0
-        return torch.cat([steer(env, goal, plan["rot"], rate), hand.expand(env.num_envs, 5)],
-                         dim=-1)
+        rot = plan["rot_turned"] if self.turn and step >= t4 else plan["rot"]
+        return torch.cat([steer(env, goal, rot, rate), hand.expand(env.num_envs, 5)], dim=-1)
 
 
 class HandFK:
@@ -249,5 +259,7 @@ def plan_pinch(env: GraspTask, script: Pinch) -> dict:
     low = lows[np.minimum(np.arange(len(fracs))[None, :], stop[:, None])]  # (E, F)
     height = script.clearance + low - keypoint @ down
     goal = point + offset
-    return {"goal": goal, "rot": rot, "height": torch.tensor(height, dtype=torch.float32),
-            "fracs": fracs}
+    # The turn: a roll of the whole hand about the world squeeze direction (E, 3).
+    turned = axis_angle_to_matrix(squeeze * math.radians(script.turn)) @ rot
+    return {"goal": goal, "rot": rot, "rot_turned": turned,
+            "height": torch.tensor(height, dtype=torch.float32), "fracs": fracs}
