@@ -188,9 +188,11 @@ def pooled_holds(trials: list[dict]) -> list[dict]:
 
 
 def write_csv(path: Path, rows: list[dict], keys: list[str], hold: bool = False) -> None:
-    """The rows as a CSV (``COLUMNS``, ``variant``, ``config``, ``seed``, ``keys``, then with
-    ``hold`` ``HOLD_COLUMNS``), atomically."""
-    fields = [*COLUMNS, "variant", "config", "seed", *keys, *(HOLD_COLUMNS if hold else ())]
+    """The rows as a CSV (``COLUMNS``, ``variant``, ``config``, ``seed``, the trials that
+    started upside down and of those the lifted, ``keys``, then with ``hold`` ``HOLD_COLUMNS``),
+    atomically."""
+    fields = [*COLUMNS, "variant", "config", "seed", "upside_down", "upside_down_lifted", *keys,
+              *(HOLD_COLUMNS if hold else ())]
     with atomic_path(path) as tmp, open(tmp, "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=fields, extrasaction="ignore")
         writer.writeheader()
@@ -284,12 +286,13 @@ def run(args: argparse.Namespace) -> None:
             print(f"\n### {name}: {fam} {variant_name}, seed {seed} ({lifted}/{trials} lifted, "
                   f"{seconds:.0f} s)\n")
             extra = HOLD_COLUMNS if args.hold else ()
-            print("| object | lifted | dropped | no grip | pushed |"
+            print("| object | lifted | dropped | no grip | pushed | upside down (lifted) |"
                   + "".join(f" {c} |" for c in extra))
-            print("|---|---:|---:|---:|---:|" + "---:|" * len(extra))
+            print("|---|---:|---:|---:|---:|---:|" + "---:|" * len(extra))
             for r in batch:
                 print(f"| {r['object']} | {r['lifted']} | {r['dropped']} | {r['no_grip']} | "
-                      f"{r['pushed']} |" + "".join(f" {r[c]} |" for c in extra))
+                      f"{r['pushed']} | {r['upside_down']} ({r['upside_down_lifted']}) |"
+                      + "".join(f" {r[c]} |" for c in extra))
             sys.stdout.flush()
             if args.out is not None:
                 write_csv(args.out, rows, keys, args.hold)

@@ -50,7 +50,8 @@ def synthetic_trajectory() -> tuple[GraspTrajectory, int]:
     pads[5:8, :, :2] = 0.004  # thumb and index pads low during the close (steps 5-7)
     distance = torch.full((E, 6), float("nan"))
     distance[0] = torch.tensor([0.03, 0.001, 0.0, 0.05, 0.05, 0.05])  # two pads on it: held
-    return GraspTrajectory(pos, pads, success, distance), pushed_at
+    start_up = torch.tensor([-1.0, 1.0, 1.0, -0.5, 1.0, 1.0])  # 0 and 3 start upside down
+    return GraspTrajectory(pos, pads, success, distance, start_up), pushed_at
 
 
 def test_classify_tells_each_outcome_from_the_trajectory() -> None:
@@ -82,6 +83,8 @@ def test_outcome_rows_count_per_object() -> None:
     assert a["thumb_pad_min_cm"] == 0.4 and a["index_pad_min_cm"] == 0.4
     assert a["held_lifts"] == 1 and a["nearest_pad_median_cm"] == 0.0
     assert b["held_lifts"] == 0 and b["nearest_pad_median_cm"] == ""
+    assert (a["upside_down"], a["upside_down_lifted"]) == (1, 1)  # trial 0: lifted
+    assert (b["upside_down"], b["upside_down_lifted"]) == (1, 0)  # trial 3: pushed
 
 
 def test_registry_and_its_one_line_errors() -> None:
@@ -341,3 +344,20 @@ def test_slide_grasp_tips_the_plate(ycb_data: Config) -> None:
     (row,) = rows
     assert row["lifted"] == 0
     assert row["dropped"] >= 5
+
+
+@pytest.mark.slow
+def test_rim_pinch_lifts_the_upright_plate(ycb_data: Config) -> None:
+    """``pinch:rim`` (results/graspability-plate-rim-2026-11-26: every upright plate of 50
+    lifted, no upside-down one): over 10 trials, every trial that starts upright is lifted and
+    held by two pads, at most one missed; the plain pinch (its pads at table height) lifts
+    fewer."""
+    (rim,) = measure("pinch", "rim", family("pinch").variants["rim"], ["029_plate"], 10,
+                     data_dir=ycb_data.data_dir)
+    upright = rim["trials"] - rim["upside_down"]
+    assert upright >= 5  # the seed's initial states: most plates land face up
+    assert rim["lifted"] - rim["upside_down_lifted"] >= upright - 1
+    assert rim["held_lifts"] == rim["lifted"]
+    (plain,) = measure("pinch", "base", family("pinch").variants["base"], ["029_plate"], 10,
+                       data_dir=ycb_data.data_dir)
+    assert plain["lifted"] < rim["lifted"]

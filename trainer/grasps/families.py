@@ -175,6 +175,9 @@ FAMILIES: dict[str, Family] = {
             # Rolled -90 degrees about the squeeze once lifted: the load leaves the flexion
             # servos (results/hold-turned-2026-11-26/).
             "press6+turn": Variant(replace(_PINCH, clearance=-0.006, turn=-90.0, turn_steps=30)),
+            # The plate's rim, the pads 11 mm up and a slower lift: every upright plate lifted,
+            # none upside down (results/graspability-plate-rim-2026-11-26/).
+            "rim": Variant(replace(_PINCH, clearance=0.011, rim_inset=0.035, lift_rate=0.3)),
             "press6+handle+noslip": Variant(
                 replace(_PINCH, clearance=-0.006, handle=True), NOSLIP),
             "middle+noslip": Variant(replace(_PINCH, middle="index"), NOSLIP),
@@ -214,12 +217,14 @@ BEST = {
     "053_mini_soccer_ball": "searched",
     "065-a_cups": "top",
     "077_rubiks_cube": "top",
+    "029_plate": "pinch:rim",
 }
 """Each Table I object's best family (``FAMILY:VARIANT``) with the hand ``searched.json`` names
 (issue 33's candidate, the default hand since 2026-11-26: link hulls, damping 0.1, 0.75 N·m,
 all joints driven, no-slip):
 results/graspability-drives-2026-11-25/ and results/graspability-search-2026-11-26/ (each
->= 8 of 10). The plate has none."""
+>= 8 of 10); the plate: results/graspability-plate-rim-2026-11-26/ (every upright plate, no
+upside-down one: 8 of 10 only where 8 of the 10 trials start upright)."""
 
 
 def best_variants(names: Sequence[str]) -> dict[str, tuple[Variant, list[str]]]:

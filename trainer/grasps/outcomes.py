@@ -75,7 +75,8 @@ def outcome_rows(
     family, variant), the trials, the count of each outcome, the highest and median rise (cm),
     the lowest thumb and index pad (cm) during ``close_window`` [start, end) (steps), and of
     the lifts, how many were held by two pads within 2 cm (``held_lifts``) and the nearest pad's
-    median distance at success (cm, empty without lifts)."""
+    median distance at success (cm, empty without lifts); how many trials started with the
+    target upside down (``GraspTrajectory.start_up``) and how many of those were lifted."""
     ids = ids.cpu()
     code = classify(trajectory, pushed_at)
     up = rise(trajectory)
@@ -83,6 +84,8 @@ def outcome_rows(
     pads = trajectory.pad_height[start:end]  # (W, E, 5)
     held = held_at_success(trajectory)
     nearest = trajectory.success_distance[:, 1:].amin(-1)
+    upside_down = (trajectory.start_up < 0 if trajectory.start_up is not None
+                   else torch.zeros_like(trajectory.lifted))
     rows = []
     for k, name in enumerate(names):
         m = ids == k
@@ -97,6 +100,8 @@ def outcome_rows(
             "thumb_pad_min_cm": _cm(pads[:, m, 0].min()),
             "index_pad_min_cm": _cm(pads[:, m, 1].min()),
             "held_lifts": int(held[m].sum()),
+            "upside_down": int(upside_down[m].sum()),
+            "upside_down_lifted": int((upside_down & trajectory.lifted)[m].sum()),
             "nearest_pad_median_cm": _cm(nearest[lifts].median()) if bool(lifts.any()) else "",
         })
         rows.append(row)

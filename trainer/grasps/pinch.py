@@ -19,9 +19,10 @@ dice, the knife, the tuna can; the plate at its rim). Measured in results/script
   command follows it so that the fingertips stay ``clearance`` above the table while they close
   (they would otherwise rise ~1 cm). The pinch point (the middle of the two tip pads where their
   gap equals the target's width) goes to the target's centre.
-* **The plate.** Wider than the hand opens (26 cm): the pinch point goes to its rim on the side
-  toward the robot, ``rim_inset`` inside its outer radius, the thumb outside (sliding under the
-  rim's lip) and the index inside, squeezing radially.
+* **The plate** (flat and wider than the hand opens: ``RIM_MIN_WIDTH``, ``RIM_MAX_HEIGHT``): the
+  pinch point goes to its rim on the side toward the robot, ``rim_inset`` inside its outer
+  radius, the thumb outside and the index inside, squeezing the rim radially. Lifted, the plate
+  turns about the pinch and hangs from it (results/graspability-plate-rim-2026-11-26/).
 * **Turn** (optional, ``turn`` degrees, after the lift): the held hand rolled about the squeeze
   direction, so that the fingers' flexion planes, which the lift's load lies in, turn toward the
   horizontal; the target's weight (and the hold probe's pull) then loads the pads' friction
@@ -46,8 +47,10 @@ from trainer.robots import sih
 from trainer.tasks import GraspTask
 
 RIM_MIN_WIDTH = 0.15
-"""Targets whose narrowest horizontal width (m) exceeds this (the plate) are pinched at the
-rim."""
+"""Flat targets whose narrowest horizontal width (m) exceeds this (the plate) are pinched at the
+rim ..."""
+RIM_MAX_HEIGHT = 0.05
+"""... if their bounding box's height (m) is below this."""
 
 
 @dataclass(frozen=True)
@@ -194,7 +197,10 @@ def pinch_targets(
     # their home direction (home palm z, away from the robot): squeeze toward the robot.
     home_finger = env.home_rot[:, 2]
     squeeze = torch.where(((squeeze @ home_finger) > 0)[:, None], -squeeze, squeeze)
-    rim = narrow > RIM_MIN_WIDTH
+    # ``narrow`` is a half-width. (Until 2026-11-26 it was compared with the full width
+    # RIM_MIN_WIDTH, so the plate, 0.26 m wide, was pinched at its centre, never at its rim.)
+    height = 2 * (axes[:, 2, :].abs() * half).sum(-1)
+    rim = (2 * narrow > RIM_MIN_WIDTH) & (height < RIM_MAX_HEIGHT)
     if handle:
         # Long, flat objects (the knife): pinch the thicker half's middle (the handle, not
         # the thin blade), from the surface samples' heights along the long horizontal axis.

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Protocol
 import torch
 from tensordict import TensorDict
 
+from geomgrasp.rotations import quat_to_matrix
 from trainer.errors import TrainerError
 from trainer.grasps.top import TopGrasp
 from trainer.tasks import GraspTask
@@ -64,6 +65,9 @@ class GraspTrajectory:
     success_distance: torch.Tensor
     """(E, 6) m: ``keypoint_distances`` (palm keypoint, then the 5 pads) at the env's first
     success; NaN where it never succeeded."""
+    start_up: torch.Tensor | None = None
+    """(E,) the world z component of the target's own z axis (its mesh's up) after the first
+    action: negative for a target that starts upside down (a plate on its face)."""
 
     @property
     def lifted(self) -> torch.Tensor:
@@ -81,6 +85,7 @@ class TrajectoryRecorder:
         self.success: list[torch.Tensor] = []
         self.success_distance = torch.full((env.num_envs, 6), float("nan"), device=env.device)
         self.succeeded = torch.zeros(env.num_envs, dtype=torch.bool, device=env.device)
+        self.start_up: torch.Tensor | None = None
 
     def capture(self, success: torch.Tensor) -> None:
         """Record the env's state after an action; ``success`` (E,) bool is that step's flag."""
@@ -88,6 +93,8 @@ class TrajectoryRecorder:
         self.target_pos.append(env.target_pose()[0].clone())
         self.pad_height.append(env.kinematics.forward(env.backend.qpos).site_pos[:, 1:, 2].clone())
         self.success.append(success.clone())
+        if self.start_up is None:
+            self.start_up = quat_to_matrix(env.target_pose()[1])[:, 2, 2].clone()
         new = success & ~self.succeeded
         if bool(new.any()):  # the SDF query only at the steps where some env first succeeds
             self.success_distance[new] = keypoint_distances(env)[new]
@@ -97,6 +104,7 @@ class TrajectoryRecorder:
         return GraspTrajectory(
             torch.stack(self.target_pos).cpu(), torch.stack(self.pad_height).cpu(),
             torch.stack(self.success).cpu(), self.success_distance.cpu(),
+            None if self.start_up is None else self.start_up.cpu(),
         )
 
 
