@@ -199,14 +199,6 @@ def write_csv(path: Path, rows: list[dict], keys: list[str], hold: bool = False)
         writer.writerows(rows)
 
 
-def write_trials(path: Path, trials: list[dict]) -> None:
-    """``--hold-out``: the probed trials as a CSV (``TRIAL_COLUMNS``), atomically."""
-    with atomic_path(path) as tmp, open(tmp, "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=TRIAL_COLUMNS)
-        writer.writeheader()
-        writer.writerows(trials)
-
-
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--objects", default=None,
@@ -241,6 +233,7 @@ def run(args: argparse.Namespace) -> None:
     """Measure every configuration x family and print the tables and the summary."""
     from trainer.config import load_env_config
     from trainer.grasps import TABLE1_OBJECTS, family_variants, measure
+    from trainer.grasps.outcomes import write_rows
     from trainer.objects import resolve_names
 
     if args.trials < 1:
@@ -296,8 +289,9 @@ def run(args: argparse.Namespace) -> None:
             sys.stdout.flush()
             if args.out is not None:
                 write_csv(args.out, rows, keys, args.hold)
-            if args.hold_out is not None:
-                write_trials(args.hold_out, trial_rows(rows))
+            trials_so_far = trial_rows(rows)
+            if args.hold_out is not None and trials_so_far:
+                write_rows(args.hold_out, trials_so_far)
 
     if args.hold:
         print(f"\n## held trials pooled over seeds {','.join(map(str, seeds))} (pull ratio: "
@@ -319,6 +313,9 @@ def run(args: argparse.Namespace) -> None:
         print(f"{name}: {lifted}/{trials} lifted, {ratio} the baseline")
     if args.out is not None:
         print(f"\nrows: {args.out}")
+    if args.hold_out is not None:
+        print(f"probed trials: {args.hold_out}" if trial_rows(rows) else
+              "probed trials: none (no trial ended lifted), so --hold-out was not written")
 
 
 if __name__ == "__main__":

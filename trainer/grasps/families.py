@@ -360,9 +360,9 @@ def _add_hold_columns(rows: list[dict], names: Sequence[str], ids: Any,
     for k, name in enumerate(names):
         if name not in by_name:
             continue
-        mine = [h for i, h in holds.items() if int(ids[i]) == k and h.held]
         row = by_name[name]
         row["holds"] = [h for i, h in sorted(holds.items()) if int(ids[i]) == k]
+        mine = [h for h in row["holds"] if h.held]
         row["held_end"] = len(mine)
         for key in HOLD_KEYS:  # ``Hold`` fields and properties of the same names
             values = [v for v in (getattr(h, key) for h in mine) if not math.isnan(v)]

@@ -22,6 +22,12 @@ def target_box(env: GraspTask) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor
     return center, rot @ env.objects.bbox_rotation[ids], 0.5 * env.objects.bbox_extents[ids]
 
 
+def half_height(axes: torch.Tensor, half: torch.Tensor) -> torch.Tensor:
+    """(E,) the box's vertical half-extent in the world (axes (E, 3, 3) as columns, half-extents
+    (E, 3))."""
+    return (axes[:, 2, :].abs() * half).sum(-1)
+
+
 def narrowest_horizontal(
     axes: torch.Tensor, half: torch.Tensor, samples: int
 ) -> tuple[torch.Tensor, torch.Tensor]:

@@ -42,7 +42,7 @@ import numpy as np
 import torch
 
 from geomgrasp.rotations import axis_angle_to_matrix, quat_to_matrix
-from trainer.grasps.geometry import narrowest_horizontal, ramp, steer, target_box
+from trainer.grasps.geometry import half_height, narrowest_horizontal, ramp, steer, target_box
 from trainer.robots import sih
 from trainer.tasks import GraspTask
 
@@ -199,8 +199,7 @@ def pinch_targets(
     squeeze = torch.where(((squeeze @ home_finger) > 0)[:, None], -squeeze, squeeze)
     # ``narrow`` is a half-width. (Until 2026-11-26 it was compared with the full width
     # RIM_MIN_WIDTH, so the plate, 0.26 m wide, was pinched at its centre, never at its rim.)
-    height = 2 * (axes[:, 2, :].abs() * half).sum(-1)
-    rim = (2 * narrow > RIM_MIN_WIDTH) & (height < RIM_MAX_HEIGHT)
+    rim = (2 * narrow > RIM_MIN_WIDTH) & (2 * half_height(axes, half) < RIM_MAX_HEIGHT)
     if handle:
         # Long, flat objects (the knife): pinch the thicker half's middle (the handle, not
         # the thin blade), from the surface samples' heights along the long horizontal axis.

@@ -90,11 +90,12 @@ class TrajectoryRecorder:
     def capture(self, success: torch.Tensor) -> None:
         """Record the env's state after an action; ``success`` (E,) bool is that step's flag."""
         env = self.env
-        self.target_pos.append(env.target_pose()[0].clone())
+        pos, quat = env.target_pose()
+        self.target_pos.append(pos.clone())
         self.pad_height.append(env.kinematics.forward(env.backend.qpos).site_pos[:, 1:, 2].clone())
         self.success.append(success.clone())
         if self.start_up is None:
-            self.start_up = quat_to_matrix(env.target_pose()[1])[:, 2, 2].clone()
+            self.start_up = quat_to_matrix(quat)[:, 2, 2]
         new = success & ~self.succeeded
         if bool(new.any()):  # the SDF query only at the steps where some env first succeeds
             self.success_distance[new] = keypoint_distances(env)[new]

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import torch
 
-from trainer.grasps.geometry import narrowest_horizontal, steer, target_box
+from trainer.grasps.geometry import half_height, narrowest_horizontal, steer, target_box
 from trainer.robots import sih
 from trainer.tasks import GraspTask
 
@@ -79,13 +79,13 @@ class TopGrasp:
         """The action (E, 11) for every env at episode step ``step``; ``plan`` holds the grasp
         frame computed at step 0."""
         if step == 0:
-            center, half_height, palm_rot = grasp_frame(env)
+            center, box_half_height, palm_rot = grasp_frame(env)
             keypoint = torch.tensor(sih.PALM_KEYPOINT, device=center.device)
             grasp_local = torch.stack(
                 [
-                    torch.full_like(half_height, self.lateral),
-                    half_height + self.palm_clearance,
-                    torch.full_like(half_height, self.grasp_depth),
+                    torch.full_like(box_half_height, self.lateral),
+                    box_half_height + self.palm_clearance,
+                    torch.full_like(box_half_height, self.grasp_depth),
                 ],
                 -1,
             )
@@ -119,7 +119,7 @@ def grasp_frame(env: GraspTask) -> tuple[torch.Tensor, torch.Tensor, torch.Tenso
     palm-down rotation (E, 3, 3) whose finger axis lies across the target's narrowest
     horizontal width."""
     center, axes, half = target_box(env)
-    half_height = (axes[:, 2, :].abs() * half).sum(-1)
+    height = half_height(axes, half)
     _, finger = narrowest_horizontal(axes, half, 12)
     # Of the two signs, take the one nearer the home direction (-y): less wrist turning.
     home_finger = env.home_rot[:, 2]
@@ -127,4 +127,4 @@ def grasp_frame(env: GraspTask) -> tuple[torch.Tensor, torch.Tensor, torch.Tenso
     down = torch.tensor([0.0, 0.0, -1.0], device=center.device).expand_as(finger)
     palm_x = torch.linalg.cross(down, finger, dim=-1)
     palm_rot = torch.stack([palm_x, down, finger], dim=-1)
-    return center, half_height, palm_rot
+    return center, height, palm_rot
