@@ -116,6 +116,49 @@ def test_reward_ablations(builtin_data: Config, reward: str) -> None:
     environment.close()
 
 
+def test_contact_difference_pays_the_change_in_closeness(builtin_data: Config) -> None:
+    """``reward.contact_shaping = "difference"``: on the same trajectory as the paper's per-step
+    term (same seed, same actions), the contact output is the per-step value minus its value at
+    the previous step (the first step after a reset: minus the reset state's, which the task
+    keeps in ``contact_prev``); the lift and success terms are unchanged and the reward is their
+    sum. After a partial reset the reset env starts again from its new state's value."""
+    envs = []
+    for shaping in ("per-step", "difference"):
+        cfg = load_env_config(num_envs=3, objects="builtin_box,builtin_mug", representation="bbox",
+                              data_dir=builtin_data.data_dir,
+                              reward={"contact_shaping": shaping})
+        envs.append(make_env(cfg, seed=1))
+    per_step, difference = envs
+    per_step.reset()
+    difference.reset()
+    start = difference.state["contact_prev"].clone()
+    assert torch.isfinite(start).all() and (start > 0).all()
+    gen = torch.Generator().manual_seed(0)
+    previous = start
+    for step in range(6):
+        if step == 3:  # env 1 starts a new episode
+            mask = torch.tensor([[False], [True], [False]])
+            for e in envs:
+                e.reset(TensorDict({"_reset": mask}, batch_size=[3]))
+            previous = previous.clone()
+            previous[1] = difference.state["contact_prev"][1]
+            assert not torch.equal(previous[1], start[1])  # (another settled state)
+        action = TensorDict({"action": torch.rand(3, 11, generator=gen) * 2 - 1}, batch_size=[3])
+        paid = per_step.step(action.clone())["next"]
+        shaped = difference.step(action.clone())["next"]
+        torch.testing.assert_close(shaped["reward_contact"][:, 0],
+                                   paid["reward_contact"][:, 0] - previous)
+        for key in ("reward_lift", "reward_success"):
+            torch.testing.assert_close(shaped[key], paid[key])
+        torch.testing.assert_close(
+            shaped["reward"],
+            shaped["reward_lift"] + shaped["reward_success"] + shaped["reward_contact"],
+        )
+        previous = paid["reward_contact"][:, 0]
+    for e in envs:
+        e.close()
+
+
 @pytest.mark.parametrize("name", REPRESENTATIONS)
 def test_representations_move_with_the_object(env: GraspTask, name: str) -> None:
     ids = torch.arange(7)

@@ -113,7 +113,7 @@ def test_specs_come_from_the_tables(task: str, representation: str, context: str
     reward_keys = [terms.reward_output_key(n) for n in terms.reward_terms(cfg.reward)]
     assert reward_keys == ["reward_lift", "reward_success", "reward_contact"]
     assert set(spec.keys()) == {t.name for t in declared} | set(reward_keys) | {
-        "success", "unstable", "lift_height", "object_id"
+        "success", "unstable", "grasp_start", "lift_height", "object_id"
     }
     for term in declared:
         assert spec[term.name].shape == (4, *term.shape(cfg))

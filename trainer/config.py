@@ -43,6 +43,7 @@ BACKENDS = ("cpu", "warp")
 on ``cpu`` Warp's CPU device, slow but the same code), from ``pip install -e ".[gpu]"``."""
 CONTEXTS = ("none", "bbox")
 REWARDS = ("sdf", "com", "none", "sdf-thumb")
+CONTACT_SHAPINGS = ("per-step", "difference")
 ROBOTS = ("ur5e", "floating")
 HAND_GEOMETRIES = ("capsules", "hulls")
 HAND_ACTIONS = ("absolute", "relative")
@@ -193,6 +194,16 @@ class RewardConfig(_Checked):
     maximum and the other three fingers are not drawn onto the object
     (results/reward-balance-2026-11-26/: on a flat object the paper's term pays a five-pad rest
     on its top face 2.7-3.9x per action what it pays a pinch)."""
+    contact_shaping: str = bounded("per-step", choices=CONTACT_SHAPINGS)
+    """How the contact term is paid. ``per-step`` (the default, the paper): its value every
+    step, so a hand that rests with its pads on the object earns it for as long as it rests.
+    ``difference`` (not the paper's; an option, 2026-11-27): its change since the previous step
+    (the first step after a reset: against the reset state), so approaching the object pays,
+    leaving pays it back, resting pays 0, and an episode's contact terms sum to the closeness at
+    its end minus at its start. The per-step term's rest (pads on the object, thumb open, no
+    lift) is where the tuna can, plate, knife and a dice seed end on the CPU
+    (results/cpu-tuna-plate-2026-11-26/); this removes what pays for it, leaving the lift and
+    success terms to choose the policy (a potential-based shaping with discount 1)."""
     h_bar: float = bounded(0.2, gt=0)
     c1: float = 0.5
     """Weight of the lift term."""
@@ -468,6 +479,17 @@ class RunConfig(_Checked):
     """Episodes in the running success rate; 0 = the number of envs."""
     torch_threads: int = bounded(1, ge=1)
     """Threads of torch's own ops (the simulation has its own pool)."""
+    grasp_starts: float = bounded(0.0, ge=0, le=1)
+    """Not the paper's (an option, 2026-11-27): the fraction of training episodes (lift task)
+    that start from a state along a scripted grasp that lifted the env's object, recorded when
+    the run starts (``trainer.training.grasp_starts``): the hand on its way to, or closed
+    around, the object. Those episodes count in no success rate and not in the curriculum;
+    evaluation never starts there. 0 (the default): every episode starts home."""
+    grasp_start_family: str = "best"
+    """The scripted grasp those starts come from: ``best`` (each object's family in
+    ``trainer.grasps.families.BEST``, Table I objects only) or one ``FAMILY[:VARIANT]``."""
+    grasp_start_rounds: int = bounded(2, ge=1)
+    """Scripted trials per env recorded for ``grasp_starts`` (each a fresh reset)."""
     random_streams: bool = True
     """Every generator of the run draws from its own stream derived from ``seed``
     (``trainer.randomness``). False: each is seeded with ``seed`` itself, as runs before

@@ -37,6 +37,7 @@ from trainer.training.checkpoint import (
     write_checkpoint,
 )
 from trainer.training.curriculum import LiftCurriculum
+from trainer.training.grasp_starts import record_grasp_starts
 from trainer.training.outcomes import EpisodeStats
 from trainer.training.progress import ProgressLog, RunClock
 from trainer.training.run_dir import RunDir
@@ -94,6 +95,15 @@ def train(
     # The env first: a config it refuses (a bin larger than the object set, a missing object)
     # leaves no run directory behind that a corrected rerun would have to --overwrite.
     env = make_env(cfg.env, seed=streams)
+    grasp_note = ""
+    if cfg.run.grasp_starts > 0:
+        # Recorded again on resume (the same streams give the same states).
+        starts = record_grasp_starts(cfg.env, streams, cfg.run.grasp_start_family,
+                                     cfg.run.grasp_start_rounds)
+        env.set_grasp_starts(starts, cfg.run.grasp_starts, streams.torch("grasp_choice"))
+        grasp_note = (f"grasp starts: {int(starts.valid.any(1).sum())} of {cfg.env.num_envs} "
+                      f"envs have one; the scripted trials lifted "
+                      f"{float(starts.lifted.float().mean()):.2f} of theirs")
     run.write_config(cfg)
     agent = make_agent(env, cfg.ppo)
     update = PPOUpdate.build(agent, cfg.ppo, minibatch_size(cfg))
@@ -110,6 +120,8 @@ def train(
         restore_global_rng(checkpoint, env.device)  # after the collector's set-up draws from it
     total_iterations = math.ceil(cfg.run.total_steps / frames)
     log = ProgressLog(run, total_iterations * frames, state.iteration, frames, resume, progress)
+    if grasp_note:
+        log.write(grasp_note)
     clock = RunClock(state.wall_time_s, state.iteration * frames)
     stop = StopSignals()
     try:

@@ -6,15 +6,19 @@ sequence (before, the env's reset generator and PPO's minibatch shuffle were two
 generators seeded with the same number, and drew the same numbers), and adding a stream never
 shifts another one:
 
-=============  ==================  ==========================================================
-stream         kind                what draws from it
-=============  ==================  ==========================================================
-``layouts``    numpy Generator     which objects fill each layout's slots (``GraspTask``)
-``resets``     torch Generator     settled state, yaw and target of each new episode
-``actions``    torch global        the policy's sampled actions (TorchRL samples with torch's
-                                   global generator) and the networks' initial weights
-``shuffle``    torch Generator     PPO's minibatch order
-=============  ==================  ==========================================================
+==================  ==================  ====================================================
+stream              kind                what draws from it
+==================  ==================  ====================================================
+``layouts``         numpy Generator     which objects fill each layout's slots (``GraspTask``)
+``resets``          torch Generator     settled state, yaw and target of each new episode
+``actions``         torch global        the policy's sampled actions (TorchRL samples with
+                                        torch's global generator) and the networks' initial
+                                        weights
+``shuffle``         torch Generator     PPO's minibatch order
+``grasp_starts``    torch Generator     the resets of the scripted trials that
+                                        ``[run] grasp_starts`` records
+``grasp_choice``    torch Generator     which training resets start from them, and where
+==================  ==================  ====================================================
 
 The initial-state banks are not run randomness: they are cached data, keyed by their content
 (``trainer.init_states``), seeded by ``init.seed`` and the objects they hold.
@@ -35,7 +39,7 @@ import torch
 if TYPE_CHECKING:
     from trainer.config import TrainConfig
 
-STREAMS = ("layouts", "resets", "actions", "shuffle")
+STREAMS = ("layouts", "resets", "actions", "shuffle", "grasp_starts", "grasp_choice")
 
 
 class RandomStreams:

@@ -32,7 +32,7 @@ checkpoints clone it, so no task keeps state anywhere else.
 from __future__ import annotations
 
 import warnings
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 import torch
@@ -59,6 +59,9 @@ from trainer.tasks.terms import (
     reward_terms,
     total_reward,
 )
+
+if TYPE_CHECKING:
+    from trainer.training.grasp_starts import GraspStarts
 
 ESCAPE_DISTANCE = 2.0
 """An object higher than this above the table top, or farther than this from its centre (m), is
@@ -175,6 +178,10 @@ class GraspTask(EnvBase):
             batch_size=[E],
             device=self.device,
         )
+        if cfg.reward.contact_shaping == "difference":
+            # The contact term's value at the previous step (E,); NaN right after a reset (the
+            # next observation sets it): only with this shaping, as start_low below.
+            self.state["contact_prev"] = torch.full((E,), float("nan"), device=self.device)
         if cfg.reward.lift_clearance > 0:
             # The target's lowest surface point at the episode's start (E,), m: only with
             # ``reward.lift_clearance``, so that runs without it keep their saved task state.
@@ -185,6 +192,10 @@ class GraspTask(EnvBase):
         )
         self._pending_restore: dict | None = None
         self._stagger_next_reset = False
+        # Training only (``set_grasp_starts``): scripted-grasp states some resets start from.
+        self._grasp_starts: GraspStarts | None = None
+        self._grasp_fraction = 0.0
+        self._grasp_rng: torch.Generator | None = None
         self._task_outputs = self._task_outputs_eager
         self._commands = self.robot.commands
         if cfg.compile:
@@ -348,6 +359,8 @@ class GraspTask(EnvBase):
         start = {"start_height": pose[:, 2]}
         if self.cfg.reward.lift_clearance > 0:
             start["start_low"] = self.lowest_point(pose[:, :3], pose[:, 3:], object_id)
+        if self.cfg.reward.contact_shaping == "difference":
+            start["contact_prev"] = torch.full_like(start["start_height"], float("nan"))
         return start
 
     def target_pose(self, qpos: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -418,17 +431,63 @@ class GraspTask(EnvBase):
             batch_size=[n],
             device=self.device,
         )
+        if self._grasp_starts is not None:
+            fresh["grasp_start"] = torch.zeros(n, dtype=torch.bool, device=self.device)
         self.state[ids] = fresh
         mocap = self.robot.mocap(fresh["target_pos"], fresh["target_rot"])
         self.backend.set_state(
             ids, qpos, torch.zeros(n, self.backend.nv, device=self.device), fresh["ctrl"], *mocap
         )
+        if self._grasp_starts is not None:
+            self._start_from_grasps(ids)
 
     def stagger_next_reset(self) -> None:
         """Make the next full reset start each env's episode at a random step in
         [0, ``max_steps``) (``ppo.stagger_episodes``): the episodes then reach ``max_steps``
         spread over the following rollouts instead of all in the same step."""
         self._stagger_next_reset = True
+
+    def use_reset_generator(self, generator: torch.Generator) -> None:
+        """Draw the episodes' initial states from ``generator`` instead of the ``resets``
+        stream (the scripted trials of ``trainer.training.grasp_starts``)."""
+        self._rng = generator
+
+    def set_grasp_starts(
+        self, starts: GraspStarts, fraction: float, generator: torch.Generator
+    ) -> None:
+        """Training only: from now on each reset of env i starts, with probability
+        ``fraction``, from one of ``starts``' valid states of env i (drawn with ``generator``)
+        instead of a settled state with the hand home; the output ``grasp_start`` flags those
+        episodes. ``starts`` must be recorded on this task's envs (the same config and
+        ``num_envs``: ``trainer.training.grasp_starts.record_grasp_starts``)."""
+        if starts.qpos.shape[0] != self.cfg.num_envs or starts.qpos.shape[2] != self.backend.nq:
+            raise ValueError("the grasp starts were recorded on another task or number of envs")
+        self._grasp_starts = starts.to(self.device)
+        self._grasp_fraction = fraction
+        self._grasp_rng = generator
+        self.state["grasp_start"] = torch.zeros(
+            self.cfg.num_envs, dtype=torch.bool, device=self.device
+        )
+
+    def _start_from_grasps(self, ids: torch.Tensor) -> None:
+        """Put a ``fraction`` of the just-reset envs ``ids`` (those with a valid grasp start)
+        into one of their recorded scripted-grasp states, drawn uniformly."""
+        starts = self._grasp_starts
+        assert starts is not None
+        valid = starts.valid[ids]  # (n, S)
+        draw = torch.rand(len(ids), generator=self._grasp_rng, device=self.device)
+        chosen = (draw < self._grasp_fraction) & valid.any(1)
+        pick = torch.multinomial(valid.float() + 1e-12, 1, generator=self._grasp_rng)[:, 0]
+        ids, pick = ids[chosen], pick[chosen]
+        if len(ids) == 0:
+            return
+        task = starts.task[ids, pick]
+        for key in task.keys():  # noqa: SIM118 (a TensorDict)
+            self.state[key][ids] = task[key]
+        self.state["grasp_start"][ids] = True
+        qpos, qvel = starts.qpos[ids, pick], starts.qvel[ids, pick]
+        mocap = self.robot.mocap(task["target_pos"], task["target_rot"])
+        self.backend.set_state(ids, qpos, qvel, task["ctrl"], *mocap)
 
     # --- checkpoints -------------------------------------------------------------------------
     def snapshot(self) -> dict:
@@ -438,6 +497,7 @@ class GraspTask(EnvBase):
             "backend": self.backend.state_dict(),
             "state": self.state.clone().to("cpu"),
             "rng": self._rng.get_state(),
+            **({} if self._grasp_rng is None else {"grasp_rng": self._grasp_rng.get_state()}),
         }
 
     def restore_on_next_reset(self, snapshot: dict) -> None:
@@ -452,6 +512,8 @@ class GraspTask(EnvBase):
             raise ValueError("the saved task state is for another task or number of envs")
         self.state.update_(state.to(self.device))
         self._rng.set_state(snapshot["rng"])
+        if self._grasp_rng is not None and "grasp_rng" in snapshot:
+            self._grasp_rng.set_state(snapshot["grasp_rng"])
 
     def mocap_targets(self) -> tuple[torch.Tensor | None, torch.Tensor | None]:
         """The robot's current mocap targets (the floating hand's: (E, 1, 3) and (E, 1, 4)), or
@@ -494,6 +556,8 @@ class GraspTask(EnvBase):
             targets = self.robot.hand.targets(s["ctrl"])
             obs = {**obs, "proprio": torch.cat([obs["proprio"], targets], dim=-1)}
         lift = terms.pop("lift_height")
+        if self.cfg.reward.contact_shaping == "difference":
+            terms = self._contact_difference(terms)
         success, terminated, truncated = flags
         unstable = self.backend.unstable() | self._thrown(qpos)
         # A blown-up step neither succeeds nor terminates (it truncates) and earns nothing.
@@ -513,6 +577,10 @@ class GraspTask(EnvBase):
                 },
                 "success": success[:, None],
                 "unstable": unstable[:, None],
+                "grasp_start": (
+                    s["grasp_start"] if self._grasp_starts is not None
+                    else torch.zeros_like(success)
+                )[:, None],
                 "lift_height": lift[:, None],
                 "object_id": self.target_objects()[:, None],
                 "terminated": terminated[:, None],
@@ -525,6 +593,20 @@ class GraspTask(EnvBase):
         if not reset:
             out["reward"] = terms["reward"][:, None]
         return out
+
+    def _contact_difference(self, terms: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """``reward.contact_shaping = "difference"``: the contact term (E,) becomes its change
+        since the previous observation, and the reward is summed again. An env just reset
+        (``contact_prev`` NaN) starts from its value now, and earns 0 on its reset observation,
+        which carries no reward anyway."""
+        now = terms["contact"]
+        prev = self.state["contact_prev"]
+        prev = torch.where(prev.isnan(), now, prev)
+        self.state["contact_prev"] = now
+        terms = {**terms, "contact": now - prev}
+        names = reward_terms(self.cfg.reward)
+        terms["reward"] = total_reward({name: terms[name] for name in names})
+        return terms
 
     def _task_outputs_eager(
         self,

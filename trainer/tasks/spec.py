@@ -37,6 +37,7 @@ def observation_spec(
         **keys,
         success=flag(),
         unstable=flag(),
+        grasp_start=flag(),  # the episode started from a scripted grasp ([run] grasp_starts)
         lift_height=scalar(),
         **{reward_output_key(name): scalar() for name in reward_terms(cfg.reward)},
         object_id=Unbounded(shape=(E, 1), dtype=torch.long, device=device),

@@ -72,9 +72,11 @@ class EpisodeStats:
     def record(self, data: TensorDictBase, curriculum: LiftCurriculum) -> dict[str, float]:
         """Walk a rollout ``data`` of shape (num_envs, T) in time (a loop over T steps, not over
         envs): accumulate the running returns, record the episodes that ended here and, by
-        their success at its current training target(s), in ``curriculum``. Returns the
+        their success at its current training target(s), in ``curriculum`` (not those that
+        started from a scripted grasp: ``grasp_start``). Returns the
         rollout's ``episodes``, mean ``episode_return`` and ``episode_length`` of those ended
-        (NaN: none) and ``unstable_resets``."""
+        (NaN: none) and ``unstable_resets``; where episodes that started from a scripted grasp
+        ended, also their count and success at their training target (``grasp_start_*``)."""
         episode_return, episode_length = self.episode_return, self.episode_length
         reward = data["next", "reward"][..., 0]
         done = data["next", "done"][..., 0]
@@ -93,7 +95,9 @@ class EpisodeStats:
             episode_return.mul_(keep)
             episode_length.mul_(keep)
         # Episodes in the order they ended (time first, then env).
-        ended = done.T.cpu()
+        # Episodes started from a scripted grasp (``[run] grasp_starts``) count nowhere.
+        from_grasp = data.get(("next", "grasp_start"), None)
+        ended = (done if from_grasp is None else done & ~from_grasp[..., 0]).T.cpu()
         ended_returns = return_at.T.cpu()[ended]
         ended_lengths = length_at.T.cpu()[ended]
         ended_success = success.T.cpu()[ended].tolist()
@@ -102,7 +106,15 @@ class EpisodeStats:
         ended_objects = data["next", "object_id"][..., 0].T.cpu()[ended].tolist()
         self.objects.extend(ended_objects, ended_success)
         curriculum.record(ended_objects, target_success.T.cpu()[ended].tolist())
+        extra = {}
+        if from_grasp is not None:
+            started = (done & from_grasp[..., 0]).T.cpu()
+            if bool(started.any()):  # for TensorBoard (metrics.csv keeps its columns)
+                lifted = target_success.T.cpu()[started].float()
+                extra = {"grasp_start_episodes": int(started.sum()),
+                         "grasp_start_success": float(lifted.mean())}
         return {
+            **extra,
             "episodes": int(ended.sum()),
             "episode_return": float(ended_returns.mean()) if len(ended_returns) else float("nan"),
             "episode_length": float(ended_lengths.mean()) if len(ended_lengths) else float("nan"),

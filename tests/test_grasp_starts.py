@@ -1,0 +1,79 @@
+"""``[run] grasp_starts``: training episodes that start along a scripted grasp that lifted
+(trainer.training.grasp_starts), on the built-in objects with the top grasp."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from tensordict import TensorDict
+
+from geomprep.config import Config
+from trainer.config import RewardConfig, load_env_config
+from trainer.errors import TrainerError
+from trainer.randomness import RandomStreams
+from trainer.tasks import make_env
+from trainer.training.curriculum import LiftCurriculum
+from trainer.training.grasp_starts import record_grasp_starts
+from trainer.training.outcomes import EpisodeStats
+
+
+def _cfg(builtin_data: Config, **overrides: object):  # noqa: ANN202
+    return load_env_config(num_envs=4, objects="builtin_cylinder,builtin_box",
+                           representation="bbox", data_dir=builtin_data.data_dir,
+                           robot={"home_above_objects": True}, **overrides)
+
+
+def test_resets_start_from_recorded_grasps_that_lifted(builtin_data: Config) -> None:
+    """The recorded captures are valid only for trials that lifted their object; with fraction
+    1 every env that has one starts from one of its own captures (its state, flagged
+    ``grasp_start``, step 0), the others start home; with fraction 0 none does."""
+    cfg = _cfg(builtin_data)
+    starts = record_grasp_starts(cfg, RandomStreams(0), "top", rounds=1)
+    E, S = starts.valid.shape
+    assert E == 4 and S >= 2
+    assert torch.equal(starts.valid.any(1), starts.lifted.any(1))
+    assert bool(starts.lifted.any())  # the top grasp lifts some of the built-in objects
+    env = make_env(cfg, seed=RandomStreams(1))
+    env.set_grasp_starts(starts, 1.0, torch.Generator().manual_seed(0))
+    td = env.reset()
+    flagged = td["grasp_start"][:, 0]
+    assert torch.equal(flagged, starts.valid.any(1))
+    assert (env.state["step_count"] == 0).all()
+    qpos = env.backend.qpos
+    gap = (qpos[:, None] - starts.qpos).abs().amax(-1)  # (E, S)
+    gap = gap.masked_fill(~starts.valid, float("inf")).amin(1)
+    assert (gap[flagged] < 1e-6).all()  # each flagged env is in one of its own captures
+    home = env.home_qpos[env.home_index[env.env_layout, 0]][:, env.hand_qpos]
+    assert (qpos[~flagged][:, env.hand_qpos] - home[~flagged]).abs().max() < 1e-6
+    # The hand keeps the script's commands: ctrl and the palm target come with the state.
+    for i in flagged.nonzero()[:, 0].tolist():
+        s = int(((qpos[i] - starts.qpos[i]).abs().amax(-1)).argmin())
+        torch.testing.assert_close(env.state["ctrl"][i], starts.task["ctrl"][i, s])
+        torch.testing.assert_close(env.state["target_pos"][i], starts.task["target_pos"][i, s])
+    env.set_grasp_starts(starts, 0.0, torch.Generator().manual_seed(0))
+    assert not env.reset()["grasp_start"].any()
+    env.close()
+
+
+def test_grasp_start_episodes_count_in_no_success_rate() -> None:
+    """Two episodes end lifted, one of them started from a scripted grasp: only the other
+    counts in the success rates and in the curriculum."""
+    stats = EpisodeStats(num_envs=2, window=16, task_h_bar=0.2, device=torch.device("cpu"))
+    curriculum = LiftCurriculum(RewardConfig(h_bar_start=0.2), num_objects=1, window=16)
+    flag = lambda *v: torch.tensor(v).reshape(2, 1, 1)  # noqa: E731
+    data = TensorDict({"next": {
+        "reward": torch.ones(2, 1, 1), "done": flag(True, True), "success": flag(True, True),
+        "lift_height": torch.full((2, 1, 1), 0.25), "object_id": torch.zeros(2, 1, 1).long(),
+        "unstable": flag(False, False), "grasp_start": flag(True, False),
+    }}, batch_size=[2, 1])
+    assert stats.record(data, curriculum)["episodes"] == 1
+    assert list(stats.outcomes) == [True]
+    assert list(curriculum.outcomes) == [True]
+
+
+def test_grasp_starts_refuse_what_they_cannot_record(builtin_data: Config) -> None:
+    """One-line errors: the bin task, and objects without a best family."""
+    with pytest.raises(TrainerError, match="lift task"):
+        record_grasp_starts(_cfg(builtin_data, task="bin"), RandomStreams(0), "top")
+    with pytest.raises(TrainerError, match="no grasp family lifts builtin_cylinder"):
+        record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "best")

@@ -1,0 +1,149 @@
+"""Training episodes that start from a scripted grasp (``[run] grasp_starts``; not the paper's).
+
+Why: on the CPU the objects that are not learned alone (the tuna can, the plate, the knife, a
+dice seed) all end with the hand resting on or beside the object, thumb open, nothing lifted
+(results/cpu-tuna-plate-2026-11-26/): the per-step contact term pays that rest, and a lift lies
+past a closing of the hand that the policy never tries. A scripted grasp lifts every Table I
+object (``trainer.grasps.families.BEST``). Starting a fraction of the training episodes from
+states along such a grasp, up to the hand closed around the object, lets PPO meet the lift's
+bonus from where it is a few actions away, and value the states before it (a reverse
+curriculum from one demonstration per env). Evaluation never starts there; the episodes that
+did are left out of every training success rate and of the lift curriculum.
+
+Recording: the run's own task (its config, its ``num_envs``; only ``max_steps`` long enough for
+the script), reset ``rounds`` times from the run's ``grasp_starts`` random stream, runs each
+object's best family; every ``stride`` actions up to the end of the script's closing the state
+of each env is kept, and of those only the envs whose trial then lifted its object. An env of
+the training task restarts from one of its own index's states (the same object and layout).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict
+
+from trainer.config import EnvConfig
+from trainer.errors import TrainerError
+from trainer.grasps.families import best_variants, variants
+from trainer.grasps.runner import episode_config, run_scripted_grasp
+from trainer.objects import resolve_names
+from trainer.randomness import RandomStreams
+
+TASK_STATE_KEYS = ("start_height", "start_low", "target_slot", "target_pos", "target_rot",
+                   "ctrl", "palm_pos")
+"""The task's per-env state a grasp start carries (those the task has); ``step_count`` restarts
+at 0 and ``contact_prev`` at its reset marker."""
+
+
+@dataclass(frozen=True)
+class GraspStarts:
+    """Scripted-grasp states of E envs, S captures each (S = rounds x captures per round)."""
+
+    qpos: torch.Tensor
+    """(E, S, nq) the simulation's positions."""
+    qvel: torch.Tensor
+    """(E, S, nv) its velocities."""
+    task: TensorDict
+    """(E, S) the task's state (``TASK_STATE_KEYS`` it has)."""
+    valid: torch.Tensor
+    """(E, S) bool: the capture belongs to a trial that lifted its object."""
+    lifted: torch.Tensor
+    """(E, rounds) bool: each round's trial lifted the env's object (what the scripts achieved
+    in this task's physics)."""
+
+    def to(self, device: torch.device) -> GraspStarts:
+        return GraspStarts(self.qpos.to(device), self.qvel.to(device), self.task.to(device),
+                           self.valid.to(device), self.lifted.to(device))
+
+
+def record_grasp_starts(
+    cfg: EnvConfig, streams: RandomStreams, family_name: str = "best", rounds: int = 2,
+    stride: int = 10,
+) -> GraspStarts:
+    """Run each object's best scripted grasp (``family_name`` "best": ``BEST``; or one
+    ``FAMILY[:VARIANT]`` for every object) ``rounds`` times on every env of a lift task built
+    from ``cfg`` (``max_steps`` raised for the script; its resets drawn from the
+    ``grasp_starts`` stream of ``streams``) and keep the states along it (every ``stride``
+    actions, to the end of its closing) of the trials that lifted. The script runs in this
+    task's physics: a family's own ``load_env_config`` overrides (``Variant.env``) are not
+    applied."""
+    from trainer.tasks import make_env
+
+    if cfg.task != "lift":
+        raise TrainerError(f"[run] grasp_starts is for the lift task, not {cfg.task!r}: "
+                           "set grasp_starts = 0")
+    names = resolve_names(cfg.objects, cfg.data_dir)
+    if family_name == "best":
+        families = [(v.script, objs) for v, objs in best_variants(names).values()]
+    else:
+        name, _, variant_name = family_name.partition(":")
+        variant = variants(name, [variant_name or "base"])[variant_name or "base"]
+        families = [(variant.script, names)]
+    parts = []
+    for script, family_objects in families:
+        env = make_env(episode_config(cfg, script), seed=streams)
+        env.use_reset_generator(streams.torch("grasp_starts", env.device))
+        wanted = torch.tensor([names.index(n) for n in family_objects], device=env.device)
+        mine = torch.isin(env.target_objects(), wanted)  # (E,) the envs this family serves
+        close_end = script.close_window[1]
+        steps = sorted({*range(stride, close_end, stride), close_end})
+        captures, lifted = [], []
+        for _ in range(rounds):
+            states: list[tuple[torch.Tensor, torch.Tensor, TensorDict]] = []
+
+            def capture(step: int, env=env, steps=steps, states=states) -> None:
+                # on_step(step) runs after action `step`: the state after step + 1 actions.
+                if step + 1 in steps:
+                    keys = [k for k in TASK_STATE_KEYS if k in env.state.keys()]  # noqa: SIM118
+                    states.append((env.backend.qpos.clone(), env.backend.qvel.clone(),
+                                   env.state.select(*keys).clone()))
+
+            ok = run_scripted_grasp(env, script, on_step=capture)
+            captures.append(states)
+            lifted.append(ok & mine)
+        env.close()
+        parts.append(_stack(mine, captures, torch.stack(lifted, 1)))
+    return _merge(parts)
+
+
+def _stack(mine: torch.Tensor, captures: list, lifted: torch.Tensor) -> GraspStarts:
+    """One family's captures ``captures[round][capture] = (qpos, qvel, task state)`` as a
+    ``GraspStarts`` over every env, valid only on the envs it serves (``mine`` (E,)) whose
+    round lifted (``lifted`` (E, R))."""
+    q = torch.stack([torch.stack([c[0] for c in states], 1) for states in captures], 1)
+    v = torch.stack([torch.stack([c[1] for c in states], 1) for states in captures], 1)
+    t = torch.stack([torch.stack([c[2] for c in states], 1) for states in captures], 1)
+    E, R, C = q.shape[:3]
+    valid = (lifted & mine[:, None])[:, :, None].expand(E, R, C).reshape(E, R * C)
+    return GraspStarts(q.reshape(E, R * C, -1), v.reshape(E, R * C, -1), t.reshape(E, R * C),
+                       valid, lifted)
+
+
+def _merge(parts: list[GraspStarts]) -> GraspStarts:
+    """The families' ``GraspStarts`` as one: each env takes the captures of the family that
+    serves it (the only one valid there); families with fewer captures are padded with invalid
+    copies of their last."""
+    S = max(p.qpos.shape[1] for p in parts)
+
+    def pad(x: torch.Tensor) -> torch.Tensor:
+        extra = S - x.shape[1]
+        return x if extra == 0 else torch.cat([x, x[:, -1:].expand(-1, extra, *x.shape[2:])], 1)
+
+    out = None
+    for p in parts:
+        valid = torch.cat([p.valid, p.valid.new_zeros(p.valid.shape[0], S - p.valid.shape[1])], 1)
+        task = p.task if p.task.shape[1] == S else torch.cat(
+            [p.task, p.task[:, -1:].expand(p.task.shape[0], S - p.task.shape[1])], 1)
+        padded = GraspStarts(pad(p.qpos), pad(p.qvel), task, valid, p.lifted)
+        if out is None:
+            out = GraspStarts(padded.qpos.clone(), padded.qvel.clone(), padded.task.clone(),
+                              padded.valid.clone(), padded.lifted.clone())
+            continue
+        serves = padded.valid.any(1)  # (a family's captures are valid only where it serves)
+        out.qpos[serves], out.qvel[serves] = padded.qpos[serves], padded.qvel[serves]
+        out.task[serves] = padded.task[serves]
+        out.valid[serves], out.lifted[serves] = padded.valid[serves], padded.lifted[serves]
+    assert out is not None
+    return out
