@@ -9,7 +9,11 @@ value, comparable with ``bench/reward_balance.py``'s scripted lift and rest (``-
 lift target to score against, e.g. the curriculum's 0.03 m; default the run's).
 
     python scripts/policy_probe.py RUN_DIR [--envs 32] [--every 10] [--sample] [--seed 7]
-                                   [--h-bar M] [--gammas 0.99,0.998]
+                                   [--h-bar M] [--gammas 0.99,0.998] [--grasp-starts]
+
+``--grasp-starts``: every env whose scripted grasp (the run's ``grasp_start_family``, one trial
+per env) lifted starts from one of its states (``[run] grasp_starts``), the others home; the
+rows then average over those envs only, and the success line says how many there were.
 """
 
 from __future__ import annotations
@@ -27,13 +31,16 @@ COLUMNS = ("palm_z", "lowest_pad_z", "pads_near", "pad_distance", "centre_rise",
 
 def probe(run_dir: Path, envs: int = 32, sample: bool = False, seed: int = 7,
           h_bar: float | None = None, gammas: tuple[float, ...] = (0.99, 0.998),
+          grasp_starts: bool = False,
           ) -> tuple[list[dict[str, float | list[float]]], float, dict[str, float]]:
     """One episode in ``envs`` envs of the run's last checkpoint (deterministic unless
     ``sample``): per action, the mean of each of ``COLUMNS`` (m; ``pads_near`` a count) and
     ``hand`` (the 5 servo targets, rad); the success rate; and the episode's earnings, means over
     envs up to each one's end: ``steps``, ``sum_<term>`` per reward term, ``return`` and
     ``G_<gamma>`` (discounted from the first action). ``h_bar``: the lift target (m) the
-    reward and success use [the run's ``reward.h_bar``]."""
+    reward and success use [the run's ``reward.h_bar``]. ``grasp_starts``: the envs start
+    along their scripted grasps where one lifted, and everything is averaged over those envs
+    (the earnings' ``envs`` says how many)."""
     from trainer.evaluation import run_episodes
     from trainer.tasks import make_env
     from trainer.tasks.terms import reward_output_key, reward_terms
@@ -47,6 +54,15 @@ def probe(run_dir: Path, envs: int = 32, sample: bool = False, seed: int = 7,
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         env = make_env(env_cfg, seed=seed)
+    chosen = torch.ones(envs, dtype=torch.bool)
+    if grasp_starts:
+        from trainer.randomness import RandomStreams
+        from trainer.training.grasp_starts import record_grasp_starts
+
+        starts = record_grasp_starts(env_cfg, RandomStreams(seed), cfg.run.grasp_start_family,
+                                     rounds=1)
+        env.set_grasp_starts(starts, 1.0, torch.Generator().manual_seed(seed))
+        chosen = starts.valid.any(1).cpu()
     rows: list[dict[str, float | list[float]]] = []
     start_low: list[torch.Tensor] = []
     reset = env.reset
@@ -68,7 +84,7 @@ def probe(run_dir: Path, envs: int = 32, sample: bool = False, seed: int = 7,
         """The env's step, noting each env's reward and its terms until its episode's end."""
         out = step(td)
         nxt = out["next"]
-        mask = alive.to(torch.float32)
+        mask = (alive & chosen).to(torch.float32)
         earned["reward"].append(nxt["reward"][:, 0].cpu() * mask)
         for n in names:
             earned[n].append(nxt[reward_output_key(n)][:, 0].cpu() * mask)
@@ -91,21 +107,23 @@ def probe(run_dir: Path, envs: int = 32, sample: bool = False, seed: int = 7,
                   distance.clamp_min(0).sum(-1), pos[:, 2] - env.state["start_height"],
                   low - start_low[0], (palm[:, :2] - pos[:, :2]).norm(dim=-1))
         row: dict[str, float | list[float]] = {
-            name: float(v.float().mean()) for name, v in zip(COLUMNS, values, strict=True)
+            name: float(v[chosen].float().mean()) for name, v in zip(COLUMNS, values, strict=True)
         }
-        row["hand"] = env.state["ctrl"][:, env.robot.hand.actuators].mean(0).tolist()
+        row["hand"] = env.state["ctrl"][chosen][:, env.robot.hand.actuators].mean(0).tolist()
         rows.append(row)
 
     success, length, _ = run_episodes(env, agent.actor, deterministic=not sample,
                                       on_step=on_step)
     env.close()
-    rewards = torch.stack(earned["reward"]).double()  # (T, E)
-    returns = {"steps": float(length.float().mean()), "return": float(rewards.sum(0).mean())}
-    returns.update({f"sum_{n}": float(torch.stack(earned[n]).sum(0).mean()) for n in names})
+    rewards = torch.stack(earned["reward"]).double()[:, chosen]  # (T, E chosen)
+    returns = {"envs": float(chosen.sum()), "steps": float(length[chosen].float().mean()),
+               "return": float(rewards.sum(0).mean())}
+    returns.update({f"sum_{n}": float(torch.stack(earned[n])[:, chosen].sum(0).mean())
+                    for n in names})
     weights = torch.arange(rewards.shape[0], dtype=torch.float64)
     returns.update({f"G_{g}": float((rewards * (g ** weights)[:, None]).sum(0).mean())
                     for g in gammas})
-    return rows, float(success.float().mean()), returns
+    return rows, float(success[chosen].float().mean()), returns
 
 
 def main(argv: list[str] | None = None) -> list[str]:
@@ -117,11 +135,14 @@ def main(argv: list[str] | None = None) -> list[str]:
     parser.add_argument("--seed", type=int, default=7)
     parser.add_argument("--h-bar", type=float, default=None)
     parser.add_argument("--gammas", default="0.99,0.998")
+    parser.add_argument("--grasp-starts", action="store_true")
     args = parser.parse_args(argv)
     gammas = tuple(float(g) for g in args.gammas.split(","))
     rows, success, returns = probe(args.run_dir, args.envs, args.sample, args.seed,
-                                   args.h_bar, gammas)
-    lines = [f"success {success:.3f} ({args.envs} envs, "
+                                   args.h_bar, gammas, args.grasp_starts)
+    envs = (f"{returns['envs']:.0f} of {args.envs} envs from grasp starts"
+            if args.grasp_starts else f"{args.envs} envs")
+    lines = [f"success {success:.3f} ({envs}, "
              f"{'sampled' if args.sample else 'deterministic'} actions)",
              "action " + " ".join(COLUMNS) + " hand_targets"]
     for i in [*range(0, len(rows), args.every), len(rows) - 1]:

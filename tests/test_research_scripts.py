@@ -74,6 +74,32 @@ def test_policy_probe_follows_an_episode(builtin_data: Config, tmp_path: Path) -
     assert lines[-1].startswith("earned") and "G_0.998" in lines[-1]
 
 
+def test_training_with_grasp_starts_and_probing_them(builtin_data: Config, tmp_path: Path) -> None:
+    """A run with ``[run] grasp_starts`` (the top grasp on the built-in cylinder, which it lifts in most trials) trains and logs
+    like any other; ``policy_probe --grasp-starts`` averages over the envs whose scripted grasp
+    lifted and says how many there were."""
+    import policy_probe
+
+    from trainer.config import load_train_config
+    from trainer.ppo import train
+
+    cfg = load_train_config(
+        env={"num_envs": 4, "objects": "builtin_cylinder", "representation": "bbox",
+             "data_dir": builtin_data.data_dir, "max_steps": 12,
+             "robot": {"home_above_objects": True}},
+        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
+             "hidden": (16, 16)},
+        run={"total_steps": 32, "checkpoint_every": 1, "seed": 0, "grasp_starts": 0.5,
+             "grasp_start_family": "top", "grasp_start_rounds": 1},
+    )
+    run = train(cfg, tmp_path / "run", progress=False)
+    assert len(run.metrics.read_text().splitlines()) == 2  # the header and one iteration
+    rows, success, earned = policy_probe.probe(run.path, envs=4, h_bar=0.05, grasp_starts=True)
+    assert 1 <= earned["envs"] <= 4 and 0.0 <= success <= 1.0 and len(rows) >= 1
+    lines = policy_probe.main([str(run.path), "--envs", "4", "--h-bar", "0.05", "--grasp-starts"])
+    assert f"{earned['envs']:.0f} of 4 envs from grasp starts" in lines[0]
+
+
 def test_object_curriculum_reads_each_kept_checkpoint(builtin_data: Config, tmp_path: Path) -> None:
     """scripts/object_curriculum.py: one row per kept checkpoint (every iteration here), each
     object's target within the curriculum's range and its held rate a fraction; a run without a
