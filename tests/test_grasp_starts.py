@@ -17,10 +17,10 @@ from trainer.training.grasp_starts import record_grasp_starts
 from trainer.training.outcomes import EpisodeStats
 
 
-def _cfg(builtin_data: Config, **overrides: object):  # noqa: ANN202
+def _cfg(builtin_data: Config, robot: dict | None = None, **overrides: object):  # noqa: ANN202
     return load_env_config(num_envs=4, objects="builtin_cylinder,builtin_box",
                            representation="bbox", data_dir=builtin_data.data_dir,
-                           robot={"home_above_objects": True}, **overrides)
+                           robot={"home_above_objects": True, **(robot or {})}, **overrides)
 
 
 def test_resets_start_from_recorded_grasps_that_lifted(builtin_data: Config) -> None:
@@ -77,3 +77,13 @@ def test_grasp_starts_refuse_what_they_cannot_record(builtin_data: Config) -> No
         record_grasp_starts(_cfg(builtin_data, task="bin"), RandomStreams(0), "top")
     with pytest.raises(TrainerError, match="no grasp family lifts builtin_cylinder"):
         record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "best")
+
+
+def test_relative_hand_actions_record_the_same_starts(builtin_data: Config) -> None:
+    """The scripts command absolute targets; a run with relative hand actions has the same
+    model and state, so its starts are recorded with absolute ones: the same states."""
+    absolute = record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "top", rounds=1)
+    relative = record_grasp_starts(_cfg(builtin_data, robot={"hand_action": "relative"}),
+                                   RandomStreams(0), "top", rounds=1)
+    assert torch.equal(relative.valid, absolute.valid)
+    torch.testing.assert_close(relative.qpos, absolute.qpos)

@@ -75,9 +75,9 @@ def test_policy_probe_follows_an_episode(builtin_data: Config, tmp_path: Path) -
 
 
 def test_training_with_grasp_starts_and_probing_them(builtin_data: Config, tmp_path: Path) -> None:
-    """A run with ``[run] grasp_starts`` (the top grasp on the built-in cylinder, which it lifts in most trials) trains and logs
-    like any other; ``policy_probe --grasp-starts`` averages over the envs whose scripted grasp
-    lifted and says how many there were."""
+    """A run with ``[run] grasp_starts`` (the top grasp on the built-in cylinder, which it
+    lifts in most trials) trains and logs like any other; ``policy_probe --grasp-starts``
+    averages over the envs whose scripted grasp lifted and says how many there were."""
     import policy_probe
 
     from trainer.config import load_train_config
