@@ -60,7 +60,7 @@ def probe(run_dir: Path, envs: int = 32, sample: bool = False, seed: int = 7,
         from trainer.training.grasp_starts import record_grasp_starts
 
         starts = record_grasp_starts(env_cfg, RandomStreams(seed), cfg.run.grasp_start_family,
-                                     rounds=1)
+                                     rounds=1, phase=cfg.run.grasp_start_phase)
         env.set_grasp_starts(starts, 1.0, torch.Generator().manual_seed(seed))
         chosen = starts.valid.any(1).cpu()
     rows: list[dict[str, float | list[float]]] = []

@@ -87,3 +87,19 @@ def test_relative_hand_actions_record_the_same_starts(builtin_data: Config) -> N
                                    RandomStreams(0), "top", rounds=1)
     assert torch.equal(relative.valid, absolute.valid)
     torch.testing.assert_close(relative.qpos, absolute.qpos)
+
+
+def test_closing_phase_keeps_the_states_of_the_closing_only(builtin_data: Config) -> None:
+    """``phase = "closing"``: one state every 10 actions of the script's closing window and its
+    end, where ``approach`` keeps every 10 actions from the 10th; both end with the same state,
+    the hand closed (the same trials)."""
+    from trainer.grasps.top import TopGrasp
+
+    start, end = TopGrasp().close_window
+    approach = record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "top", rounds=1)
+    closing = record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "top", rounds=1,
+                                  phase="closing")
+    assert closing.qpos.shape[1] == len({*range(start, end, 10), end})
+    assert approach.qpos.shape[1] == len({*range(10, end, 10), end})
+    torch.testing.assert_close(closing.qpos[:, -1], approach.qpos[:, -1])
+    assert torch.equal(closing.lifted, approach.lifted)

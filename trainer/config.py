@@ -44,6 +44,7 @@ on ``cpu`` Warp's CPU device, slow but the same code), from ``pip install -e ".[
 CONTEXTS = ("none", "bbox")
 REWARDS = ("sdf", "com", "none", "sdf-thumb")
 CONTACT_SHAPINGS = ("per-step", "difference")
+GRASP_START_PHASES = ("approach", "closing")
 ROBOTS = ("ur5e", "floating")
 HAND_GEOMETRIES = ("capsules", "hulls")
 HAND_ACTIONS = ("absolute", "relative")
@@ -490,6 +491,10 @@ class RunConfig(_Checked):
     ``trainer.grasps.families.BEST``, Table I objects only) or one ``FAMILY[:VARIANT]``."""
     grasp_start_rounds: int = bounded(2, ge=1)
     """Scripted trials per env recorded for ``grasp_starts`` (each a fresh reset)."""
+    grasp_start_phase: str = bounded("approach", choices=GRASP_START_PHASES)
+    """Which states of the script: ``approach`` (every 10 actions from the 10th to the end of
+    the closing: the hand on its way down, then closing) or ``closing`` (every 10 actions of
+    the closing window only: the hand at the object)."""
     random_streams: bool = True
     """Every generator of the run draws from its own stream derived from ``seed``
     (``trainer.randomness``). False: each is seeded with ``seed`` itself, as runs before

@@ -99,7 +99,8 @@ def train(
     if cfg.run.grasp_starts > 0:
         # Recorded again on resume (the same streams give the same states).
         starts = record_grasp_starts(cfg.env, streams, cfg.run.grasp_start_family,
-                                     cfg.run.grasp_start_rounds)
+                                     cfg.run.grasp_start_rounds,
+                                     phase=cfg.run.grasp_start_phase)
         env.set_grasp_starts(starts, cfg.run.grasp_starts, streams.torch("grasp_choice"))
         grasp_note = (f"grasp starts: {int(starts.valid.any(1).sum())} of {cfg.env.num_envs} "
                       f"envs have one; the scripted trials lifted "

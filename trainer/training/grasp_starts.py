@@ -61,15 +61,17 @@ class GraspStarts:
 
 def record_grasp_starts(
     cfg: EnvConfig, streams: RandomStreams, family_name: str = "best", rounds: int = 2,
-    stride: int = 10,
+    stride: int = 10, phase: str = "approach",
 ) -> GraspStarts:
     """Run each object's best scripted grasp (``family_name`` "best": ``BEST``; or one
     ``FAMILY[:VARIANT]`` for every object) ``rounds`` times on every env of a lift task built
     from ``cfg`` (``max_steps`` raised for the script; its resets drawn from the
     ``grasp_starts`` stream of ``streams``) and keep the states along it (every ``stride``
-    actions, to the end of its closing) of the trials that lifted. The script runs in this
-    task's physics (with absolute hand actions, whatever ``robot.hand_action``): a family's
-    own ``load_env_config`` overrides (``Variant.env``) are not applied."""
+    actions, to the end of its closing: from the first ``stride`` actions with ``phase``
+    "approach", from the start of the closing with "closing") of the trials that lifted. The
+    script runs in this task's physics (with absolute hand actions, whatever
+    ``robot.hand_action``): a family's own ``load_env_config`` overrides (``Variant.env``) are
+    not applied."""
     from trainer.tasks import make_env
 
     if cfg.task != "lift":
@@ -93,7 +95,8 @@ def record_grasp_starts(
         wanted = torch.tensor([names.index(n) for n in family_objects], device=env.device)
         mine = torch.isin(env.target_objects(), wanted)  # (E,) the envs this family serves
         close_end = script.close_window[1]
-        steps = sorted({*range(stride, close_end, stride), close_end})
+        first = stride if phase == "approach" else script.close_window[0]
+        steps = sorted({*range(first, close_end, stride), close_end})
         captures, lifted = [], []
         for _ in range(rounds):
             states: list[tuple[torch.Tensor, torch.Tensor, TensorDict]] = []
