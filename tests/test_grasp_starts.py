@@ -50,6 +50,10 @@ def test_resets_start_from_recorded_grasps_that_lifted(builtin_data: Config) -> 
         s = int(((qpos[i] - starts.qpos[i]).abs().amax(-1)).argmin())
         torch.testing.assert_close(env.state["ctrl"][i], starts.task["ctrl"][i, s])
         torch.testing.assert_close(env.state["target_pos"][i], starts.task["target_pos"][i, s])
+    # Each output keeps its own flags: a collector stacks a rollout's outputs at its end,
+    # after later resets have changed the task's state (this aliasing once mislabelled them).
+    env.state["grasp_start"][:] = False  # as the next reset of these envs would
+    assert torch.equal(td["grasp_start"][:, 0], flagged)
     env.set_grasp_starts(starts, 0.0, torch.Generator().manual_seed(0))
     assert not env.reset()["grasp_start"].any()
     env.close()

@@ -577,8 +577,10 @@ class GraspTask(EnvBase):
                 },
                 "success": success[:, None],
                 "unstable": unstable[:, None],
+                # A copy: a collector keeps each step's outputs until the rollout ends, and
+                # the state's flags change at every reset.
                 "grasp_start": (
-                    s["grasp_start"] if self._grasp_starts is not None
+                    s["grasp_start"].clone() if self._grasp_starts is not None
                     else torch.zeros_like(success)
                 )[:, None],
                 "lift_height": lift[:, None],
