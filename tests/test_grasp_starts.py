@@ -36,7 +36,7 @@ def test_resets_start_from_recorded_grasps_that_lifted(builtin_data: Config) -> 
     env = make_env(cfg, seed=RandomStreams(1))
     env.set_grasp_starts(starts, 1.0, torch.Generator().manual_seed(0))
     td = env.reset()
-    flagged = td["grasp_start"][:, 0]
+    flagged = td["grasp_start"][:, 0].clone()
     assert torch.equal(flagged, starts.valid.any(1))
     assert (env.state["step_count"] == 0).all()
     qpos = env.backend.qpos
@@ -52,8 +52,11 @@ def test_resets_start_from_recorded_grasps_that_lifted(builtin_data: Config) -> 
         torch.testing.assert_close(env.state["target_pos"][i], starts.task["target_pos"][i, s])
     # Each output keeps its own flags: a collector stacks a rollout's outputs at its end,
     # after later resets have changed the task's state (this aliasing once mislabelled them).
+    td["action"] = torch.zeros(4, 11)
+    stepped = env._step(td)["grasp_start"][:, 0]  # the task's own output, as collectors keep it
+    assert torch.equal(stepped, flagged)
     env.state["grasp_start"][:] = False  # as the next reset of these envs would
-    assert torch.equal(td["grasp_start"][:, 0], flagged)
+    assert torch.equal(stepped, flagged)
     env.set_grasp_starts(starts, 0.0, torch.Generator().manual_seed(0))
     assert not env.reset()["grasp_start"].any()
     env.close()
