@@ -95,7 +95,7 @@ def train(
     # The env first: a config it refuses (a bin larger than the object set, a missing object)
     # leaves no run directory behind that a corrected rerun would have to --overwrite.
     env = make_env(cfg.env, seed=streams)
-    grasp_note = ""
+    grasp_note = None
     if cfg.run.grasp_starts > 0:
         # Recorded again on resume (the same streams give the same states).
         starts = record_grasp_starts(cfg.env, streams, cfg.run.grasp_start_family,
@@ -121,7 +121,7 @@ def train(
         restore_global_rng(checkpoint, env.device)  # after the collector's set-up draws from it
     total_iterations = math.ceil(cfg.run.total_steps / frames)
     log = ProgressLog(run, total_iterations * frames, state.iteration, frames, resume, progress)
-    if grasp_note:
+    if grasp_note is not None:  # (the log opens after the run's state is loaded)
         log.write(grasp_note)
     clock = RunClock(state.wall_time_s, state.iteration * frames)
     stop = StopSignals()

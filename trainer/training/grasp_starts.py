@@ -97,14 +97,14 @@ def record_grasp_starts(
         close_end = script.close_window[1]
         first = stride if phase == "approach" else script.close_window[0]
         steps = sorted({*range(first, close_end, stride), close_end})
+        keys = [k for k in TASK_STATE_KEYS if k in env.state.keys()]  # noqa: SIM118
         captures, lifted = [], []
         for _ in range(rounds):
             states: list[tuple[torch.Tensor, torch.Tensor, TensorDict]] = []
 
-            def capture(step: int, env=env, steps=steps, states=states) -> None:
+            def capture(step: int, env=env, steps=steps, states=states, keys=keys) -> None:
                 # on_step(step) runs after action `step`: the state after step + 1 actions.
                 if step + 1 in steps:
-                    keys = [k for k in TASK_STATE_KEYS if k in env.state.keys()]  # noqa: SIM118
                     states.append((env.backend.qpos.clone(), env.backend.qvel.clone(),
                                    env.state.select(*keys).clone()))
 
