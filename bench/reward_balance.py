@@ -107,6 +107,14 @@ def run(args: argparse.Namespace) -> None:
         extra["data_dir"] = args.data_dir
     cfg = load_env_config(args.config, task="lift", context="none", representation="com",
                           max_steps=args.max_steps, **extra)
+    # The scripts command absolute hand targets (as the grasp-start recorder runs them); the
+    # reward does not depend on the action mode, so a relative-action config measures the same.
+    cfg = replace(cfg, robot=replace(cfg.robot, hand_action="absolute"))
+    lift_end = lift.total_steps - lift.hold_steps
+    if lift_end > args.max_steps:
+        print(f"note: the {args.family} script lifts until action {lift_end}; episodes of "
+              f"{args.max_steps} actions cut its lift short (give --max-steps {lift_end} or more "
+              "to score the whole lift)", file=sys.stderr)
     names = resolve_names(args.objects, cfg.data_dir)
     cfg = replace(cfg, num_envs=args.trials * len(names), objects=",".join(names))
     rest = replace(lift, lift=0.0, lift_steps=0, hold_steps=args.max_steps - before_lift)

@@ -36,12 +36,20 @@ def test_lift_ends_with_the_bonus_and_rest_runs_to_the_end(builtin_data: Config,
     assert float(lift["steps"]) < 160 and float(rest["steps"]) == 160
     assert int(rest["lifted"]) == 0 and float(rest["sum_success"]) == 0
     assert float(rest["sum_contact"]) > float(lift["sum_contact"]) > 0
+    # The scripts command absolute hand targets, so a config with relative hand actions is
+    # measured with the very same rollouts (the reward does not depend on the action mode).
+    relative = tmp_path / "relative.csv"
+    reward_balance.main(["--objects", "builtin_cylinder", "--trials", "2", "--max-steps", "160",
+                         "--set", "robot.hand_action=relative",
+                         "--data-dir", str(builtin_data.data_dir), "--out", str(relative)])
+    assert relative.read_text() == out.read_text()
 
 
-def test_family_picks_the_script_and_its_rest_runs_to_the_end(builtin_data: Config,
-                                                              tmp_path: Path) -> None:
+def test_family_picks_the_script_and_its_rest_runs_to_the_end(
+        builtin_data: Config, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """``--family pinch:press6``: the fingertip pinch (closed after 130 actions) and its rest;
-    the episode's lift target as ``--set`` gives it."""
+    the episode's lift target as ``--set`` gives it; an episode shorter than the script's lift
+    (190 actions) is said to cut it short."""
     out = tmp_path / "pinch.csv"
     reward_balance.main(["--objects", "builtin_box", "--trials", "1", "--max-steps", "140",
                          "--family", "pinch:press6", "--set", "reward.h_bar=0.03",
@@ -51,6 +59,8 @@ def test_family_picks_the_script_and_its_rest_runs_to_the_end(builtin_data: Conf
     assert float(lift["steps"]) <= 140 and float(rest["steps"]) == 140
     assert int(rest["lifted"]) == 0 and float(rest["sum_success"]) == 0
     assert float(rest["sum_contact"]) > 0
+    assert "lifts until action 190; episodes of 140 actions cut its lift short" in (
+        capsys.readouterr().err)
 
 
 @pytest.mark.parametrize(("family", "message"), [
