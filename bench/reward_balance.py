@@ -90,6 +90,7 @@ def main(argv: list[str] | None = None) -> None:
 def run(args: argparse.Namespace) -> None:
     from trainer.config import dotted_overrides, load_env_config, parse_sets
     from trainer.grasps.families import merge_overrides, variants
+    from trainer.grasps.runner import script_config
     from trainer.objects import resolve_names
     from trainer.tasks import make_env
 
@@ -107,9 +108,7 @@ def run(args: argparse.Namespace) -> None:
         extra["data_dir"] = args.data_dir
     cfg = load_env_config(args.config, task="lift", context="none", representation="com",
                           max_steps=args.max_steps, **extra)
-    # The scripts command absolute hand targets (as the grasp-start recorder runs them); the
-    # reward does not depend on the action mode, so a relative-action config measures the same.
-    cfg = replace(cfg, robot=replace(cfg.robot, hand_action="absolute"))
+    cfg = script_config(cfg)  # the scripts' absolute hand actions; the reward is the same
     lift_end = lift.total_steps - lift.hold_steps
     if lift_end > args.max_steps:
         print(f"note: the {args.family} script lifts until action {lift_end}; episodes of "

@@ -146,9 +146,17 @@ def run_scripted_grasp(
     return lifted
 
 
+def script_config(cfg: EnvConfig) -> EnvConfig:
+    """``cfg`` with absolute hand actions, as the scripts command them. A config with relative
+    hand actions has the same model and state (its targets are its running commands), so a
+    script measures there what it measures in its own mode."""
+    return replace(cfg, robot=replace(cfg.robot, hand_action="absolute"))
+
+
 def episode_config(cfg: EnvConfig, script: GraspScript) -> EnvConfig:
-    """``cfg`` with episodes long enough for ``script`` (a scripted trial is one episode)."""
-    return replace(cfg, max_steps=max(cfg.max_steps, script.total_steps))
+    """``script_config(cfg)`` with episodes long enough for ``script`` (a scripted trial is one
+    episode)."""
+    return replace(script_config(cfg), max_steps=max(cfg.max_steps, script.total_steps))
 
 
 def record_grasp(

@@ -19,7 +19,6 @@ the training task restarts from one of its own index's states (the same object a
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import torch
@@ -85,12 +84,9 @@ def record_grasp_starts(
         variant = variants(name, [variant_name or "base"])[variant_name or "base"]
         families = [(variant.script, names)]
     parts = []
-    # The scripts command absolute hand targets; a run with relative hand actions has the same
-    # model and the same state (the targets are its running commands), so they record there.
-    record_cfg = dataclasses.replace(
-        cfg, robot=dataclasses.replace(cfg.robot, hand_action="absolute"))
     for script, family_objects in families:
-        env = make_env(episode_config(record_cfg, script), seed=streams)
+        # (episode_config: absolute hand actions, whatever the run's mode)
+        env = make_env(episode_config(cfg, script), seed=streams)
         env.use_reset_generator(streams.torch("grasp_starts", env.device))
         wanted = torch.tensor([names.index(n) for n in family_objects], device=env.device)
         mine = torch.isin(env.target_objects(), wanted)  # (E,) the envs this family serves
