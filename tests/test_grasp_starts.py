@@ -110,3 +110,40 @@ def test_closing_phase_keeps_the_states_of_the_closing_only(builtin_data: Config
     assert approach.qpos.shape[1] == len({*range(10, end, 10), end})
     torch.testing.assert_close(closing.qpos[:, -1], approach.qpos[:, -1])
     assert torch.equal(closing.lifted, approach.lifted)
+
+
+def test_searched_grasp_records_beside_other_families(
+    builtin_data: Config, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Several objects whose best families differ, one of them a searched (keyframe) grasp
+    with a row for its own object only (as ``searched.json`` has for the ten Table I objects):
+    the recorder runs it on every env, the other objects' envs on a borrowed row, and keeps
+    each env's captures from its own family. (The ten together once stopped here with "no
+    searched grasp for ...".)"""
+    import trainer.training.grasp_starts as grasp_starts
+    from trainer.grasps.families import Variant
+    from trainer.grasps.keyframes import KeyframeGrasp, top_grasp_theta
+    from trainer.grasps.top import TopGrasp
+
+    row = tuple(top_grasp_theta().tolist())
+    searched = KeyframeGrasp(by_object=(("builtin_box", row),))
+    with pytest.raises(TrainerError, match="no searched grasp for builtin_cylinder"):
+        env = make_env(_cfg(builtin_data), seed=RandomStreams(0))
+        try:
+            searched.env_theta(env)
+        finally:
+            env.close()
+    best = {"searched": (Variant(searched), ["builtin_box"]),
+            "top": (Variant(TopGrasp()), ["builtin_cylinder"])}
+    monkeypatch.setattr(grasp_starts, "best_variants", lambda names: best)
+    starts = record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "best", rounds=1)
+    alone = record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "top", rounds=1)
+    env = make_env(_cfg(builtin_data), seed=RandomStreams(0))
+    box = env.target_objects() == env.objects.names.index("builtin_box")
+    env.close()
+    assert bool(box.any()) and bool((~box).any())
+    # The cylinder's envs keep the top grasp's captures, as a run of the top grasp alone.
+    assert torch.equal(starts.lifted[~box], alone.lifted[~box])
+    n = alone.qpos.shape[1]
+    torch.testing.assert_close(starts.qpos[~box, :n], alone.qpos[~box])
+    assert bool(starts.lifted.any())

@@ -24,7 +24,8 @@ speed, hold 1 s.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 
 import torch
 
@@ -99,6 +100,18 @@ class KeyframeGrasp:
     def pushed_at(self) -> int:
         """The last step of the descent: a drag moves the target by design during the close."""
         return self.close_window[0] - 1
+
+    def covering(self, names: Sequence[str]) -> KeyframeGrasp:
+        """The same grasp with a row for every object of ``names``: those without one take the
+        first object's. For a multi-object task whose other objects another family serves (the
+        grasp starts' recorder): their envs run some keyframe grasp, and their trials are
+        discarded."""
+        if self.theta is not None or not self.by_object:
+            return self
+        table = dict(self.by_object)
+        fallback = self.by_object[0][1]
+        rows = tuple((n, table.get(n, fallback)) for n in names)
+        return replace(self, by_object=rows)
 
     def env_theta(self, env: GraspTask) -> torch.Tensor:
         """(E, D) each env's parameters; an env whose target has no row is a one-line error."""

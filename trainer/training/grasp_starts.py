@@ -27,6 +27,7 @@ from tensordict import TensorDict
 from trainer.config import EnvConfig
 from trainer.errors import TrainerError
 from trainer.grasps.families import best_variants, variants
+from trainer.grasps.keyframes import KeyframeGrasp
 from trainer.grasps.runner import episode_config, run_scripted_grasp
 from trainer.objects import resolve_names
 from trainer.randomness import RandomStreams
@@ -85,6 +86,10 @@ def record_grasp_starts(
         families = [(variant.script, names)]
     parts = []
     for script, family_objects in families:
+        if isinstance(script, KeyframeGrasp):
+            # The envs of the objects another family serves run it too (their trials are
+            # discarded): a searched grasp needs a row for each object of the task.
+            script = script.covering(names)
         # (episode_config: absolute hand actions, whatever the run's mode)
         env = make_env(episode_config(cfg, script), seed=streams)
         env.use_reset_generator(streams.torch("grasp_starts", env.device))
