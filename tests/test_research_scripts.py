@@ -74,14 +74,22 @@ def test_policy_probe_follows_an_episode(builtin_data: Config, tmp_path: Path) -
     assert lines[-1].startswith("earned") and "G_0.998" in lines[-1]
 
 
-def test_training_with_grasp_starts_and_probing_them(builtin_data: Config, tmp_path: Path) -> None:
+def test_training_with_grasp_starts_and_probing_them(
+    builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """A run with ``[run] grasp_starts`` (the top grasp on the built-in cylinder, which it
-    lifts in most trials) trains and logs like any other; ``policy_probe --grasp-starts``
-    averages over the envs whose scripted grasp lifted and says how many there were."""
-    import policy_probe
+    lifts in most trials) trains and logs like any other, and keeps the recorded states, which
+    a resume loads instead of recording them again; ``policy_probe --grasp-starts`` averages
+    over the envs whose scripted grasp lifted and says how many there were."""
+    import dataclasses
 
+    import policy_probe
+    import torch
+
+    import trainer.ppo
     from trainer.config import load_train_config
     from trainer.ppo import train
+    from trainer.training.grasp_starts import GraspStarts
 
     cfg = load_train_config(
         env={"num_envs": 4, "objects": "builtin_cylinder", "representation": "bbox",
@@ -94,6 +102,17 @@ def test_training_with_grasp_starts_and_probing_them(builtin_data: Config, tmp_p
     )
     run = train(cfg, tmp_path / "run", progress=False)
     assert len(run.metrics.read_text().splitlines()) == 2  # the header and one iteration
+    recorded = GraspStarts.load(run.grasp_starts)
+    assert recorded.valid.shape[0] == 4 and bool(recorded.valid.any())
+
+    def record_again(*args: object, **kwargs: object) -> None:
+        raise AssertionError("a resume recorded the grasp starts again")
+
+    monkeypatch.setattr(trainer.ppo, "record_grasp_starts", record_again)
+    longer = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, total_steps=64))
+    train(longer, run.path, resume=True, progress=False)
+    assert len(run.metrics.read_text().splitlines()) == 3
+    torch.testing.assert_close(GraspStarts.load(run.grasp_starts).qpos, recorded.qpos)
     rows, success, earned = policy_probe.probe(run.path, envs=4, h_bar=0.05, grasp_starts=True)
     assert 1 <= earned["envs"] <= 4 and 0.0 <= success <= 1.0 and len(rows) >= 1
     lines = policy_probe.main([str(run.path), "--envs", "4", "--h-bar", "0.05", "--grasp-starts"])

@@ -37,7 +37,7 @@ from trainer.training.checkpoint import (
     write_checkpoint,
 )
 from trainer.training.curriculum import LiftCurriculum
-from trainer.training.grasp_starts import record_grasp_starts
+from trainer.training.grasp_starts import GraspStarts, record_grasp_starts
 from trainer.training.outcomes import EpisodeStats
 from trainer.training.progress import ProgressLog, RunClock
 from trainer.training.run_dir import RunDir
@@ -97,10 +97,16 @@ def train(
     env = make_env(cfg.env, seed=streams)
     grasp_note = None
     if cfg.run.grasp_starts > 0:
-        # Recorded again on resume (the same streams give the same states).
-        starts = record_grasp_starts(cfg.env, streams, cfg.run.grasp_start_family,
-                                     cfg.run.grasp_start_rounds,
-                                     phase=cfg.run.grasp_start_phase)
+        # Recorded once per run (minutes for ten objects); a resume loads them (recording
+        # again from the same streams would give the same states).
+        if resume and run.grasp_starts.is_file():
+            starts = GraspStarts.load(run.grasp_starts)
+        else:
+            starts = record_grasp_starts(cfg.env, streams, cfg.run.grasp_start_family,
+                                         cfg.run.grasp_start_rounds,
+                                         phase=cfg.run.grasp_start_phase)
+            run.path.mkdir(parents=True, exist_ok=True)
+            starts.save(run.grasp_starts)
         env.set_grasp_starts(starts, cfg.run.grasp_starts, streams.torch("grasp_choice"))
         grasp_note = (f"grasp starts: {int(starts.valid.any(1).sum())} of {cfg.env.num_envs} "
                       f"envs have one; the scripted trials lifted "

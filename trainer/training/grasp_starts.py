@@ -20,6 +20,7 @@ the training task restarts from one of its own index's states (the same object a
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 from tensordict import TensorDict
@@ -53,6 +54,20 @@ class GraspStarts:
     lifted: torch.Tensor
     """(E, rounds) bool: each round's trial lifted the env's object (what the scripts achieved
     in this task's physics)."""
+
+    def save(self, path: Path) -> None:
+        """Write to ``path`` whole or not at all (a temporary file renamed into place)."""
+        tmp = path.with_name(path.name + ".tmp")
+        torch.save({"qpos": self.qpos, "qvel": self.qvel, "task": self.task.to_dict(),
+                    "valid": self.valid, "lifted": self.lifted}, tmp)
+        tmp.replace(path)
+
+    @staticmethod
+    def load(path: Path) -> GraspStarts:
+        """What ``save`` wrote (on the CPU)."""
+        d = torch.load(path, map_location="cpu", weights_only=True)
+        task = TensorDict(d["task"], batch_size=d["valid"].shape)
+        return GraspStarts(d["qpos"], d["qvel"], task, d["valid"], d["lifted"])
 
     def to(self, device: torch.device) -> GraspStarts:
         return GraspStarts(self.qpos.to(device), self.qvel.to(device), self.task.to(device),

@@ -31,7 +31,8 @@ GROWABLE = ("run.total_steps", "run.max_minutes")
 @dataclass(frozen=True)
 class RunDir:
     """A training run on disk: ``config.json`` (the resolved config), ``metrics.csv`` (one row
-    per iteration), ``tb/`` (TensorBoard), ``checkpoints/iter_NNNNNN.pt`` and ``last.pt``."""
+    per iteration), ``tb/`` (TensorBoard), ``checkpoints/iter_NNNNNN.pt`` and ``last.pt``, and
+    with ``[run] grasp_starts`` ``grasp_starts.pt``."""
 
     path: Path
 
@@ -54,6 +55,11 @@ class RunDir:
     @property
     def last(self) -> Path:
         return self.checkpoints / "last.pt"
+
+    @property
+    def grasp_starts(self) -> Path:
+        """The states ``[run] grasp_starts`` recorded (a resume loads them, not records)."""
+        return self.path / "grasp_starts.pt"
 
     def checkpoint(self, iteration: int) -> Path:
         """The checkpoint written at the end of ``iteration``."""
@@ -115,7 +121,7 @@ class RunDir:
 
     def clear(self) -> None:
         """Delete what a run writes here (nothing else in the directory)."""
-        for path in (self.config, self.metrics):
+        for path in (self.config, self.metrics, self.grasp_starts):
             path.unlink(missing_ok=True)
         for path in (self.checkpoints, self.tensorboard, self.path / "eval"):
             shutil.rmtree(path, ignore_errors=True)
