@@ -250,13 +250,19 @@ def test_presets_load_and_hold_the_paper_schedule() -> None:
 
     root = Path(__file__).resolve().parents[1] / "configs"
     presets = {p.stem: load_train_config(p) for p in sorted(root.glob("*.toml"))}
-    assert {"paper", "cpu", "cpu-bin"} <= set(presets)
+    assert {"paper", "cpu", "cpu-table1", "cpu-bin"} <= set(presets)
     paper = presets["paper"]
     assert paper.env.num_envs == 16384 and paper.ppo.frames_per_env == 32
     assert paper.ppo.epochs == 5 and minibatch_size(paper) == 32768
     assert paper.run.total_steps // iteration_frames(paper) == 500
     assert paper.env.reward.h_bar_start == paper.env.reward.h_bar  # no curriculum
     assert presets["cpu"].env.reward.h_bar_start < presets["cpu"].env.reward.h_bar
+    # cpu-table1 starts training episodes along scripted grasps: each of its objects has one.
+    from trainer.grasps.families import BEST
+
+    table1 = presets["cpu-table1"]
+    assert table1.run.grasp_starts > 0 and table1.env.robot.hand_action == "relative"
+    assert set(table1.env.objects.split(",")) == set(BEST)
     cpu_bin = presets["cpu-bin"].env
     assert cpu_bin.task == "bin" and cpu_bin.representation == "bbox"  # the paper's choice
     assert cpu_bin.reward.curriculum_per_object and cpu_bin.physics.sleep

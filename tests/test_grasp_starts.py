@@ -82,7 +82,8 @@ def test_grasp_starts_refuse_what_they_cannot_record(builtin_data: Config) -> No
     """One-line errors: the bin task, and objects without a best family."""
     with pytest.raises(TrainerError, match="lift task"):
         record_grasp_starts(_cfg(builtin_data, task="bin"), RandomStreams(0), "top")
-    with pytest.raises(TrainerError, match="no grasp family lifts builtin_cylinder"):
+    with pytest.raises(TrainerError, match="grasp_starts: no scripted grasp lifts builtin_cylinder"
+                       ", builtin_box yet .*set grasp_starts = 0"):
         record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "best")
 
 
@@ -136,6 +137,8 @@ def test_searched_grasp_records_beside_other_families(
     best = {"searched": (Variant(searched), ["builtin_box"]),
             "top": (Variant(TopGrasp()), ["builtin_cylinder"])}
     monkeypatch.setattr(grasp_starts, "best_variants", lambda names: best)
+    monkeypatch.setattr(grasp_starts, "BEST", {"builtin_box": "searched",
+                                               "builtin_cylinder": "top"})
     starts = record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "best", rounds=1)
     alone = record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "top", rounds=1)
     env = make_env(_cfg(builtin_data), seed=RandomStreams(0))

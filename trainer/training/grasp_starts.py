@@ -27,7 +27,7 @@ from tensordict import TensorDict
 
 from trainer.config import EnvConfig
 from trainer.errors import TrainerError
-from trainer.grasps.families import best_variants, variants
+from trainer.grasps.families import BEST, best_variants, variants
 from trainer.grasps.keyframes import KeyframeGrasp
 from trainer.grasps.runner import episode_config, run_scripted_grasp
 from trainer.objects import resolve_names
@@ -94,6 +94,12 @@ def record_grasp_starts(
                            "set grasp_starts = 0")
     names = resolve_names(cfg.objects, cfg.data_dir)
     if family_name == "best":
+        missing = [n for n in names if n not in BEST]
+        if missing:
+            raise TrainerError(
+                f"[run] grasp_starts: no scripted grasp lifts {', '.join(missing)} yet (each of "
+                f"the ten Table I objects has one): set grasp_starts = 0 (configs/cpu.toml), or "
+                f"name one family for every object with [run] grasp_start_family")
         families = [(v.script, objs) for v, objs in best_variants(names).values()]
     else:
         name, _, variant_name = family_name.partition(":")
