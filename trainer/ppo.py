@@ -105,7 +105,6 @@ def train(
             starts = record_grasp_starts(cfg.env, streams, cfg.run.grasp_start_family,
                                          cfg.run.grasp_start_rounds,
                                          phase=cfg.run.grasp_start_phase)
-            run.path.mkdir(parents=True, exist_ok=True)
             starts.save(run.grasp_starts)
         env.set_grasp_starts(starts, cfg.run.grasp_starts, streams.torch("grasp_choice"))
         grasp_note = (f"grasp starts: {int(starts.valid.any(1).sum())} of {cfg.env.num_envs} "

@@ -25,6 +25,7 @@ from pathlib import Path
 import torch
 from tensordict import TensorDict
 
+from geomgrasp.files import atomic_path
 from trainer.config import EnvConfig
 from trainer.errors import TrainerError
 from trainer.grasps.families import BEST, best_variants, variants
@@ -56,11 +57,10 @@ class GraspStarts:
     in this task's physics)."""
 
     def save(self, path: Path) -> None:
-        """Write to ``path`` whole or not at all (a temporary file renamed into place)."""
-        tmp = path.with_name(path.name + ".tmp")
-        torch.save({"qpos": self.qpos, "qvel": self.qvel, "task": self.task.to_dict(),
-                    "valid": self.valid, "lifted": self.lifted}, tmp)
-        tmp.replace(path)
+        """Write to ``path`` whole or not at all (``atomic_path``)."""
+        with atomic_path(path) as tmp:
+            torch.save({"qpos": self.qpos, "qvel": self.qvel, "task": self.task.to_dict(),
+                        "valid": self.valid, "lifted": self.lifted}, tmp)
 
     @staticmethod
     def load(path: Path) -> GraspStarts:
