@@ -76,6 +76,7 @@ def one_line(exc_info: pytest.ExceptionInfo) -> str:
         ('[reward]\nkind = "dense"', '[reward] kind = "dense": must be one of "sdf"'),
         ("[init]\ndrop_height = [0.2, 0.1]", "[init] drop_height = [0.2, 0.1]: must be [lowest"),
         ("[ppo]\ninit_action_mean = [0.0]", "[ppo] init_action_mean = [0.0]: needs 11 values"),
+        ("[ppo]\ninit_log_std = [-1.0, -2.0]", "[ppo] init_log_std = [-1.0, -2.0]: needs one"),
         ("[physics]\nsubstep = 5", "[physics]: unknown key 'substep' (did you mean 'substeps'?)"),
     ],
 )

@@ -74,6 +74,26 @@ def test_untrained_policy_mean_action(builtin_data: Config) -> None:
     env.close()
 
 
+def test_per_action_initial_std(builtin_data: Config) -> None:
+    # init_log_std per action: the untrained policy explores the hand pose with one std and
+    # the hand with another; sampled actions spread by exactly those.
+    cfg = tiny_config(builtin_data.data_dir)
+    log_std = (math.log(0.3),) * 6 + (math.log(0.05),) * 5
+    cfg = dataclasses.replace(cfg, ppo=dataclasses.replace(cfg.ppo, init_log_std=log_std))
+    env = make_env(cfg.env, seed=0)
+    agent = Agent(env.observation_spec, cfg.ppo)
+    torch.manual_seed(0)
+    td = env.reset()
+    with set_exploration_type(ExplorationType.RANDOM):
+        actions = torch.cat([agent.actor(td.clone())["action"] for _ in range(500)])
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        mean = agent.actor(td.clone())["action"].repeat(500, 1)
+    spread = (actions - mean).std(0)
+    torch.testing.assert_close(spread[:6], torch.full((6,), 0.3), atol=0.03, rtol=0)
+    torch.testing.assert_close(spread[6:], torch.full((5,), 0.05), atol=0.005, rtol=0)
+    env.close()
+
+
 def test_running_norm_matches_batch_statistics() -> None:
     norm = RunningNorm((3,))
     data = torch.randn(1000, 3) * torch.tensor([1.0, 5.0, 0.1]) + torch.tensor([2.0, -1.0, 0.0])

@@ -1,7 +1,8 @@
 """Research scripts: scripts/home_heights.py (the per-object home heights of ``[robot]
 home_above_objects``), scripts/early_lifts.py (what the initial policy's low lifts are),
 scripts/policy_probe.py (what a trained policy does over an episode) and
-scripts/object_curriculum.py (each object's curriculum target over a run)."""
+scripts/object_curriculum.py (each object's curriculum target over a run) and
+scripts/start_noise.py (how much exploration noise grasp starts survive)."""
 
 from __future__ import annotations
 
@@ -156,3 +157,40 @@ def test_object_curriculum_reads_each_kept_checkpoint(builtin_data: Config, tmp_
     (plain / "config.json").write_text(json.dumps(config_dict(load_train_config())))
     with pytest.raises(SystemExit, match="not a per-object curriculum run"):
         object_curriculum.main([str(plain)])
+
+
+def test_start_noise_replays_the_same_starts_per_setting(
+    builtin_data: Config, tmp_path: Path
+) -> None:
+    """scripts/start_noise.py on a tiny run with grasp starts: one row per noise setting over
+    the envs that start along a grasp; the noise-free setting is deterministic (the same starts
+    and draws each time), and a run without recorded starts is a one-line error."""
+    import start_noise
+
+    from trainer.config import load_train_config
+    from trainer.ppo import train
+
+    cfg = load_train_config(
+        env={"num_envs": 4, "objects": "builtin_cylinder", "representation": "bbox",
+             "data_dir": builtin_data.data_dir, "max_steps": 12,
+             "robot": {"home_above_objects": True, "hand_action": "relative"}},
+        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
+             "hidden": (16, 16)},
+        run={"total_steps": 32, "seed": 0, "grasp_starts": 0.5, "grasp_start_family": "top",
+             "grasp_start_rounds": 1},
+    )
+    run = train(cfg, tmp_path / "run", progress=False)
+    quiet, noisy = start_noise.parse_sigma("0/0"), start_noise.parse_sigma("0.6/0.05")
+    assert noisy.tolist() == pytest.approx([0.6] * 6 + [0.05] * 5)
+    envs, rows = start_noise.survive(run.path, [quiet, noisy, quiet], hold=2, h_bar=0.01)
+    assert 1 <= envs <= 4 and len(rows) == 3
+    assert rows[0] == rows[2]
+    assert all(0.0 <= r["success"] <= r["rose"] + 1e-9 <= 1.0 + 1e-9 for r in rows)
+    lines = start_noise.main([str(run.path), "--sigma", "0/0", "--sigma", "0.6/0.6",
+                              "--hold", "2"])
+    assert lines[0].startswith(f"{envs} envs from grasp starts") and len(lines) == 4
+    with pytest.raises(SystemExit, match="--sigma 1/2/3: write POSE/HAND"):
+        start_noise.parse_sigma("1/2/3")
+    (run.path / "grasp_starts.pt").unlink()
+    with pytest.raises(SystemExit, match="has no grasp_starts.pt"):
+        start_noise.survive(run.path, [quiet])

@@ -438,7 +438,13 @@ class PPOConfig(_Checked):
     cut in the same step until successes set them apart, and each rollout holds one phase of
     the episode (all reaching, or all late); legged_gym randomizes the first episode's length
     for the same reason. Training only: evaluation always plays whole episodes."""
-    init_log_std: float = -0.5
+    init_log_std: float | tuple[float, ...] = -0.5
+    """Log of the untrained policy's action std (learned from there): one number for every
+    action (-0.5: std 0.61), or one per action (the 6 hand-pose actions, then the 5 hand
+    actions). Per action is not the paper's; an option (2026-11-27) for grasps that the
+    exploration noise itself breaks (``scripts/start_noise.py``: from the plate's recorded rim
+    pinches a fixed lifting policy never succeeds at std 0.61;
+    results/cpu-exploration-noise-2026-11-27/)."""
     init_action_mean: tuple[float, ...] = (0.0,) * ACTION_DIM
     """Mean action of the untrained policy (the output layer's bias). Zero (the usual choice)
     puts every hand DoF mid-range at the first step; ``[0, 0, 0, 0, 0, 0, 1, -1, -1, -1, -1]``
@@ -458,6 +464,11 @@ class PPOConfig(_Checked):
             raise field_error(
                 TrainerError, "init_action_mean", self.init_action_mean,
                 f"needs {ACTION_DIM} values, one per action",
+            )
+        if isinstance(self.init_log_std, tuple) and len(self.init_log_std) != ACTION_DIM:
+            raise field_error(
+                TrainerError, "init_log_std", self.init_log_std,
+                f"needs one number or {ACTION_DIM} values, one per action",
             )
 
 

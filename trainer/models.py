@@ -166,7 +166,8 @@ class PolicyNet(nn.Module):
         with torch.no_grad():
             self.loc.bias.copy_(torch.tensor(cfg.init_action_mean))
             self.loc.weight.mul_(0.01)  # start near the mean action whatever the observation
-        self.log_std = nn.Parameter(torch.full((ACTION_DIM,), cfg.init_log_std))
+        log_std = torch.as_tensor(cfg.init_log_std, dtype=torch.float32)
+        self.log_std = nn.Parameter(log_std.expand(ACTION_DIM).clone())
 
     def forward(self, *obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         loc = self.loc(self.body(self.encoder(*obs)))

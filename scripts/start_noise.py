@@ -1,0 +1,142 @@
+"""How much exploration noise a run's grasp starts survive: every env whose scripted grasp
+lifted starts from one of its recorded states (the run's ``grasp_starts.pt``, ``[run]
+grasp_starts``), and a fixed Gaussian policy acts from there for one episode: hand pose still for
+``--hold`` actions, then the palm up at mean action ``--lift``, the five hand actions at mean
+``--close`` (with relative hand actions, > 0 closes), each action plus noise of the given std.
+Prints, per noise setting, how often the first episode succeeded (the run's curriculum start
+target, ``reward.h_bar_start``, unless ``--h-bar``) and rose by 1 cm, and the ratio of its
+success rate to the first setting's (give the noise-free one first: the baseline).
+
+A PPO policy explores with exactly this kind of noise, so a grasp whose success falls to zero
+under the untrained policy's std (``[ppo] init_log_std``) is one PPO sees succeed only by luck
+(results/cpu-exploration-noise-2026-11-27/: the plate's rim pinch 0.24 -> 0.00 at std 0.61).
+
+    python scripts/start_noise.py RUN_DIR [--sigma 0/0 --sigma 0.6/0.6 ...] [--hold 20]
+                                  [--lift 0.5] [--close 0.3] [--hand-step RAD] [--seed 0]
+
+A ``--sigma`` is ``POSE/HAND`` (one std for the 6 hand-pose actions, one for the 5 hand actions)
+or 11 values ``a/b/.../k``; ``--hand-step`` overrides ``robot.hand_relative_step``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import warnings
+from pathlib import Path
+
+import torch
+
+ACTION_DIM = 11
+POSE_DIM = 6
+LIFT_ACTION = 2  # the hand pose's z (up) action
+
+
+def parse_sigma(text: str) -> torch.Tensor:
+    """``POSE/HAND`` or 11 stds separated by ``/`` -> (11,) stds."""
+    try:
+        values = [float(v) for v in text.split("/")]
+    except ValueError:
+        values = []
+    if len(values) == 2:
+        return torch.tensor([values[0]] * POSE_DIM + [values[1]] * (ACTION_DIM - POSE_DIM))
+    if len(values) == ACTION_DIM and min(values) >= 0:
+        return torch.tensor(values)
+    raise SystemExit(f"--sigma {text}: write POSE/HAND (e.g. 0.6/0.6) or {ACTION_DIM} stds a/b/...")
+
+
+def survive(run_dir: Path, sigmas: list[torch.Tensor], hold: int = 20, lift: float = 0.5,
+            close: float = 0.3, hand_step: float | None = None, h_bar: float | None = None,
+            seed: int = 0) -> tuple[int, list[dict[str, float]]]:
+    """The number of envs with a grasp start, and per std in ``sigmas`` (each (11,)) the share
+    of those envs whose first episode succeeded (``success``) and whose target rose by 1 cm at
+    some point (``rose``), and per target object the share that succeeded (``success:NAME``),
+    the same envs, starts and noise draws for every setting."""
+    from trainer.objects import resolve_names
+    from trainer.randomness import RandomStreams
+    from trainer.tasks import make_env
+    from trainer.training.grasp_starts import GraspStarts
+    from trainer.training.run_dir import RunDir
+
+    run = RunDir(run_dir)
+    if not run.grasp_starts.exists():
+        raise SystemExit(f"{run_dir} has no grasp_starts.pt: pass a run trained with "
+                         "[run] grasp_starts > 0 (it records them when it starts)")
+    cfg = run.load_config().env
+    robot = cfg.robot if hand_step is None else dataclasses.replace(
+        cfg.robot, hand_relative_step=hand_step)
+    reward = cfg.reward if h_bar is None else dataclasses.replace(
+        cfg.reward, h_bar=h_bar, h_bar_start=h_bar)
+    cfg = dataclasses.replace(cfg, compile=False, robot=robot, reward=reward)
+    starts = GraspStarts.load(run.grasp_starts)
+    rows = []
+    for sigma in sigmas:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            env = make_env(cfg, seed=RandomStreams(seed))
+        env.set_grasp_starts(starts, 1.0, torch.Generator().manual_seed(seed))
+        noise = torch.Generator().manual_seed(seed + 1)
+        td = env.reset()
+        chosen = td["grasp_start"][:, 0].cpu().clone()
+        target = env.target_objects().cpu()
+        n = cfg.num_envs
+        outcome = torch.full((n,), -1)  # first episode: -1 running, 0 failed, 1 succeeded
+        rose = torch.zeros(n, dtype=torch.bool)
+        for step in range(cfg.max_steps):
+            action = torch.randn(n, ACTION_DIM, generator=noise) * sigma
+            action[:, POSE_DIM:] += close
+            if step >= hold:
+                action[:, LIFT_ACTION] += lift
+            td["action"] = action.clamp(-1.0, 1.0).to(env.device)
+            out = env.step(td)["next"]
+            live = outcome < 0
+            rose |= live & (out["lift_height"][:, 0].cpu() >= 0.01)
+            done = out["done"][:, 0].cpu() & live
+            outcome[done] = out["success"][:, 0].cpu()[done].long()
+            td = out
+        env.close()
+        row = {"success": float((outcome[chosen] == 1).float().mean()),
+               "rose": float(rose[chosen].float().mean())}
+        for i, name in enumerate(resolve_names(cfg.objects, cfg.data_dir)):
+            mine = chosen & (target == i)
+            if mine.any():
+                row[f"success:{name}"] = float((outcome[mine] == 1).float().mean())
+        rows.append(row)
+    return int(chosen.sum()), rows
+
+
+def main(argv: list[str] | None = None) -> list[str]:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("run_dir", type=Path)
+    parser.add_argument("--sigma", action="append", default=None,
+                        help="POSE/HAND stds (repeatable; the first is the baseline)")
+    parser.add_argument("--hold", type=int, default=20)
+    parser.add_argument("--lift", type=float, default=0.5)
+    parser.add_argument("--close", type=float, default=0.3)
+    parser.add_argument("--hand-step", type=float, default=None)
+    parser.add_argument("--h-bar", type=float, default=None)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    texts = args.sigma or ["0/0", "0.6/0.6"]
+    envs, rows = survive(args.run_dir, [parse_sigma(t) for t in texts], hold=args.hold,
+                         lift=args.lift, close=args.close, hand_step=args.hand_step,
+                         h_bar=args.h_bar, seed=args.seed)
+    base = rows[0]["success"]
+    lines = [f"{envs} envs from grasp starts; hold {args.hold} actions, then lift {args.lift:g}; "
+             f"hand {args.close:+g}" + (f"; hand step {args.hand_step:g} rad"
+                                        if args.hand_step is not None else ""),
+             "sigma (pose/hand) | success | rose 1 cm | success / first"]
+    for text, row in zip(texts, rows, strict=True):
+        ratio = f"{row['success'] / base:.2f}" if base > 0 else "-"
+        lines.append(f"{text} | {row['success']:.3f} | {row['rose']:.3f} | {ratio}")
+    objects = [k.split(":", 1)[1] for k in rows[0] if k.startswith("success:")]
+    if len(objects) > 1:
+        lines.append("success per object: object | " + " | ".join(texts))
+        lines += [f"{name} | " + " | ".join(f"{r[f'success:{name}']:.3f}" for r in rows)
+                  for name in objects]
+    print("\n".join(lines))
+    return lines
+
+
+if __name__ == "__main__":
+    main()
