@@ -443,8 +443,10 @@ class PPOConfig(_Checked):
     action (-0.5: std 0.61), or one per action (the 6 hand-pose actions, then the 5 hand
     actions). Per action is not the paper's; an option (2026-11-27) for grasps that the
     exploration noise itself breaks (``scripts/start_noise.py``: from the plate's recorded rim
-    pinches a fixed lifting policy never succeeds at std 0.61;
-    results/cpu-exploration-noise-2026-11-27/)."""
+    pinches a fixed lifting policy never succeeds at std 0.61). Tried on the plate (0.15 pose,
+    0.05 hand) and the knife (0.3, 0.1) alone: the plate still 0/50, the knife 0/50 against
+    10/50 at equal env steps, slower to learn from home
+    (results/cpu-exploration-noise-2026-11-27/)."""
     init_action_mean: tuple[float, ...] = (0.0,) * ACTION_DIM
     """Mean action of the untrained policy (the output layer's bias). Zero (the usual choice)
     puts every hand DoF mid-range at the first step; ``[0, 0, 0, 0, 0, 0, 1, -1, -1, -1, -1]``
