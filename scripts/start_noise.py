@@ -27,8 +27,9 @@ from pathlib import Path
 
 import torch
 
-ACTION_DIM = 11
-POSE_DIM = 6
+from trainer.config import ACTION_DIM
+
+POSE_DIM = 6  # the hand-pose actions come first (trainer.robots.base), then the hand's
 LIFT_ACTION = 2  # the hand pose's z (up) action
 
 
