@@ -1,7 +1,9 @@
 """What a trained policy does with its target over an episode: every N actions, averaged over
 envs, the palm's height, the lowest fingertip pad's, how many pads are within 2 cm of the
 target's surface, their summed distance to it, the target's centre rise and lowest-point rise,
-the palm's horizontal distance to it, and the hand's servo targets. A policy that reaches,
+the palm's horizontal distance to it, the policy's action std (mean over the 6 pose actions and
+over the 5 hand actions: it varies only with ``[ppo] state_dependent_std``), and the hand's
+servo targets. A policy that reaches,
 rests or tips shows it here without a video (results/cpu-lift-clearance-2026-11-26/: the tuna
 can held tipped 1.7 cm for 150 actions). Then what the episode earned, averaged over envs up to
 each one's end: the reward's terms summed and the return discounted with each ``--gammas``
@@ -26,7 +28,7 @@ from pathlib import Path
 import torch
 
 COLUMNS = ("palm_z", "lowest_pad_z", "pads_near", "pad_distance", "centre_rise", "lowest_rise",
-           "palm_xy_distance")
+           "palm_xy_distance", "std_pose", "std_hand")
 
 
 def probe(run_dir: Path, envs: int = 32, sample: bool = False, seed: int = 7,
@@ -34,7 +36,8 @@ def probe(run_dir: Path, envs: int = 32, sample: bool = False, seed: int = 7,
           grasp_starts: bool = False,
           ) -> tuple[list[dict[str, float | list[float]]], float, dict[str, float]]:
     """One episode in ``envs`` envs of the run's last checkpoint (deterministic unless
-    ``sample``): per action, the mean of each of ``COLUMNS`` (m; ``pads_near`` a count) and
+    ``sample``): per action, the mean of each of ``COLUMNS`` (m; ``pads_near`` a count; the stds
+    in action units) and
     ``hand`` (the 5 servo targets, rad); the success rate; and the episode's earnings, means over
     envs up to each one's end: ``steps``, ``sum_<term>`` per reward term, ``return`` and
     ``G_<gamma>`` (discounted from the first action). ``h_bar``: the lift target (m) the
@@ -92,6 +95,13 @@ def probe(run_dir: Path, envs: int = 32, sample: bool = False, seed: int = 7,
         return out
 
     env.step = step_and_note
+    scales: list[torch.Tensor] = []
+
+    def actor_and_note(td):  # noqa: ANN001, ANN202
+        """The policy, noting the action std it would sample with (state-dependent or not)."""
+        out = agent.actor(td)
+        scales[:] = [out["scale"].cpu()]
+        return out
 
     def on_step() -> None:
         pos, quat = env.target_pose()
@@ -105,14 +115,15 @@ def probe(run_dir: Path, envs: int = 32, sample: bool = False, seed: int = 7,
         palm = env.state["palm_pos"]
         values = (palm[:, 2], tips[..., 2].amin(-1), (distance < 0.02).sum(-1).float(),
                   distance.clamp_min(0).sum(-1), pos[:, 2] - env.state["start_height"],
-                  low - start_low[0], (palm[:, :2] - pos[:, :2]).norm(dim=-1))
+                  low - start_low[0], (palm[:, :2] - pos[:, :2]).norm(dim=-1),
+                  scales[0][:, :6].mean(-1), scales[0][:, 6:].mean(-1))
         row: dict[str, float | list[float]] = {
             name: float(v[chosen].float().mean()) for name, v in zip(COLUMNS, values, strict=True)
         }
         row["hand"] = env.state["ctrl"][chosen][:, env.robot.hand.actuators].mean(0).tolist()
         rows.append(row)
 
-    success, length, _ = run_episodes(env, agent.actor, deterministic=not sample,
+    success, length, _ = run_episodes(env, actor_and_note, deterministic=not sample,
                                       on_step=on_step)
     env.close()
     rewards = torch.stack(earned["reward"]).double()[:, chosen]  # (T, E chosen)

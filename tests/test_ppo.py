@@ -94,6 +94,38 @@ def test_per_action_initial_std(builtin_data: Config) -> None:
     env.close()
 
 
+def test_state_dependent_std_learns_where_noise_pays(builtin_data: Config) -> None:
+    # [ppo] state_dependent_std: untrained, every state explores with init_log_std's std; then
+    # a policy-gradient signal that pays small noise in one kind of state (holding a grasp) and
+    # large noise in another (reaching) sets the two apart, which one learned vector cannot.
+    cfg = tiny_config(builtin_data.data_dir)
+    cfg = dataclasses.replace(cfg, ppo=dataclasses.replace(cfg.ppo, state_dependent_std=True))
+    env = make_env(cfg.env, seed=0)
+    policy = Agent(env.observation_spec, cfg.ppo).policy_net
+    torch.manual_seed(0)
+    proprio = torch.randn(2048, *env.observation_spec["proprio"].shape[1:])
+    obj = torch.randn(2048, *env.observation_spec["object"].shape[1:])
+    env.close()
+    holding = torch.arange(2048) < 1024
+    proprio[holding] += 3.0  # two clusters of states the features tell apart
+    _, scale = policy(proprio, obj)
+    torch.testing.assert_close(scale, torch.full_like(scale, math.exp(-0.5)))
+    optimizer = torch.optim.Adam(policy.parameters(), lr=1e-3)
+    for _ in range(200):
+        loc, scale = policy(proprio, obj)
+        action = (loc + scale * torch.randn_like(loc)).detach()
+        dist = torch.distributions.Normal(loc, scale)
+        noise = ((action - loc) / scale).detach().pow(2)
+        advantage = torch.where(holding[:, None], 1.0 - noise, noise - 1.0)
+        loss = -(advantage * dist.log_prob(action)).mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    _, scale = policy(proprio, obj)
+    holding_std, reaching_std = float(scale[holding].mean()), float(scale[~holding].mean())
+    assert holding_std < 0.5 * math.exp(-0.5) and holding_std < 0.7 * reaching_std
+
+
 def test_running_norm_matches_batch_statistics() -> None:
     norm = RunningNorm((3,))
     data = torch.randn(1000, 3) * torch.tensor([1.0, 5.0, 0.1]) + torch.tensor([2.0, -1.0, 0.0])

@@ -70,6 +70,13 @@ def test_policy_probe_follows_an_episode(builtin_data: Config, tmp_path: Path) -
     assert earned["steps"] <= 12
     assert abs(rows[0]["centre_rise"]) < 0.01 and abs(rows[0]["lowest_rise"]) < 0.01
     assert all(len(row["hand"]) == 5 and row["palm_z"] > 0.0 for row in rows)
+    # the std columns: the policy's own (state-independent here: the same in every row)
+    from trainer.training.checkpoint import load_agent
+
+    std = load_agent(run.path)[1].policy_net.log_std.detach().exp()
+    assert all(row["std_pose"] == pytest.approx(float(std[:6].mean()), rel=1e-5)
+               and row["std_hand"] == pytest.approx(float(std[6:].mean()), rel=1e-5)
+               for row in rows)
     lines = policy_probe.main([str(run.path), "--envs", "3", "--every", "5"])
     assert lines[1].startswith("action palm_z") and len(lines) == 2 + 3 + 1 + 1  # 0, 5, 10, 11
     assert lines[-1].startswith("earned") and "G_0.998" in lines[-1]

@@ -447,6 +447,11 @@ class PPOConfig(_Checked):
     0.05 hand) and the knife (0.3, 0.1) alone: the plate still 0/50, the knife 0/50 against
     10/50 at equal env steps, slower to learn from home
     (results/cpu-exploration-noise-2026-11-27/)."""
+    state_dependent_std: bool = False
+    """Let the action std depend on the state: log std = ``init_log_std``'s learned values plus
+    a linear head (zero at the start) on the policy's last hidden features. Not the paper's
+    (its std is one learned vector); an option (2026-11-27) for grasps that exploration noise
+    breaks while reaching them needs it: noise lower only where it costs."""
     init_action_mean: tuple[float, ...] = (0.0,) * ACTION_DIM
     """Mean action of the untrained policy (the output layer's bias). Zero (the usual choice)
     puts every hand DoF mid-range at the first step; ``[0, 0, 0, 0, 0, 0, 1, -1, -1, -1, -1]``

@@ -153,8 +153,10 @@ class Encoder(nn.Module):
 
 
 class PolicyNet(nn.Module):
-    """(proprio, object) -> (loc, scale) of a diagonal Gaussian over the 11-d action; the
-    scale is state-independent (a learned log-std per action dimension)."""
+    """(proprio, object) -> (loc, scale) of a diagonal Gaussian over the 11-d action. The
+    scale is a learned log-std per action dimension, state-independent by default; with
+    ``[ppo] state_dependent_std`` a linear head on the body's features adds to it, so the
+    policy can explore less where noise costs (holding a grasp) and more elsewhere."""
 
     def __init__(self, shapes: ObservationShapes, norm: ObservationNorm, cfg: PPOConfig) -> None:
         super().__init__()
@@ -168,11 +170,29 @@ class PolicyNet(nn.Module):
             self.loc.weight.mul_(0.01)  # start near the mean action whatever the observation
         log_std = torch.as_tensor(cfg.init_log_std, dtype=torch.float32)
         self.log_std = nn.Parameter(log_std.expand(ACTION_DIM).clone())
+        self.log_std_head: nn.Linear | None = None
+        if cfg.state_dependent_std:
+            # Zero weights: the untrained policy explores exactly as the state-independent one.
+            self.log_std_head = nn.Linear(cfg.hidden[-1], ACTION_DIM, bias=False)
+            nn.init.zeros_(self.log_std_head.weight)
 
     def forward(self, *obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        loc = self.loc(self.body(self.encoder(*obs)))
-        scale = self.log_std.clamp(-5.0, 1.0).exp().expand_as(loc)
+        features = self.body(self.encoder(*obs))
+        loc = self.loc(features)
+        log_std = self.log_std
+        if self.log_std_head is not None:
+            # The std reads the features the mean learned but does not shape them (detached,
+            # as gSDE's default): the score of log-std is noisier than that of the mean.
+            log_std = log_std + self.log_std_head(features.detach())
+        scale = log_std.clamp(-5.0, 1.0).exp().expand_as(loc)
         return loc, scale
+
+    def mean_std(self, rollout_scale: torch.Tensor) -> float:
+        """The action std to report for an iteration: the learned one (state-independent), or
+        the mean over the rollout's states of the std it was collected with."""
+        if self.log_std_head is None:
+            return float(self.log_std.detach().clamp(-5.0, 1.0).exp().mean())
+        return float(rollout_scale.mean())
 
 
 class ValueNet(nn.Module):

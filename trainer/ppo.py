@@ -162,7 +162,7 @@ def train(
                     "target_success_rate": target_rate,
                     **episodes,
                     **losses,
-                    "action_std": float(agent.policy_net.log_std.detach().exp().mean()),
+                    "action_std": agent.policy_net.mean_std(data["scale"]),
                     "lr": update.optimizer.param_groups[0]["lr"],
                 }
                 # No rate before the first episode ends: "nan" would read as a broken run.
