@@ -1,8 +1,9 @@
 """Research scripts: scripts/home_heights.py (the per-object home heights of ``[robot]
 home_above_objects``), scripts/early_lifts.py (what the initial policy's low lifts are),
 scripts/policy_probe.py (what a trained policy does over an episode) and
-scripts/object_curriculum.py (each object's curriculum target over a run) and
-scripts/start_noise.py (how much exploration noise grasp starts survive)."""
+scripts/object_curriculum.py (each object's curriculum target over a run),
+scripts/start_noise.py (how much exploration noise grasp starts survive) and
+scripts/episode_outcomes.py (how each evaluation episode ends)."""
 
 from __future__ import annotations
 
@@ -201,3 +202,40 @@ def test_start_noise_replays_the_same_starts_per_setting(
     (run.path / "grasp_starts.pt").unlink()
     with pytest.raises(SystemExit, match="has no grasp_starts.pt"):
         start_noise.survive(run.path, [quiet])
+
+
+def test_episode_outcomes_puts_each_episode_in_one_class(
+    builtin_data: Config, tmp_path: Path
+) -> None:
+    """scripts/episode_outcomes.py: the classes from the centre rise (a success whatever its
+    rise; never up 1 cm; up then 3 cm below the peak at the end; up and staying), and on a tiny
+    trained run one line per env whose counts add up to the envs."""
+    import episode_outcomes as eo
+    import torch
+
+    up_and_down = torch.tensor([0.0, 0.05, 0.10, 0.04])
+    assert eo.classify(up_and_down, True, 0.01, 0.03) == "success"
+    assert eo.classify(torch.tensor([0.0, 0.004, 0.002]), False, 0.01, 0.03) == "never lifted"
+    assert eo.classify(up_and_down, False, 0.01, 0.03) == "dropped"
+    assert eo.classify(torch.tensor([0.0, 0.05, 0.04]), False, 0.01, 0.03) == "stalled"
+
+    from trainer.config import load_train_config
+    from trainer.ppo import train
+
+    cfg = load_train_config(
+        env={"num_envs": 4, "objects": "builtin_box", "representation": "bbox",
+             "data_dir": builtin_data.data_dir, "max_steps": 12},
+        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
+             "hidden": (16, 16)},
+        run={"total_steps": 32, "checkpoint_every": 1, "seed": 0},
+    )
+    run = train(cfg, tmp_path / "run", progress=False)
+    episodes = eo.outcomes(run.path, envs=3, h_bar=0.05)
+    assert len(episodes) == 3
+    for ep in episodes:
+        assert ep.outcome in eo.CLASSES and 1 <= ep.length <= 12
+        assert 0 <= ep.peak_action < ep.length and ep.peak_rise >= ep.end_rise
+        assert len(ep.hand_at_peak) == len(ep.hand_after) == 5
+    lines = eo.main([str(run.path), "--envs", "3", "--h-bar", "0.05"])
+    counts = [int(part.rsplit(" ", 1)[1]) for part in lines[0].split(" (of")[0].split(" | ")]
+    assert sum(counts) == 3 and len(lines) == 2 + 3
