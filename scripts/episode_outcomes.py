@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import warnings
 from collections import Counter
 from pathlib import Path
 
@@ -59,31 +58,24 @@ def classify(rise: torch.Tensor, success: bool, lifted: float, drop: float) -> s
 def outcomes(run_dir: Path, envs: int = 50, seed: int = 11, h_bar: float | None = None,
              lifted: float = 0.01, drop: float = 0.03, after: int = 6) -> list[Episode]:
     """One deterministic episode in each of ``envs`` envs of the run's last checkpoint."""
-    from trainer.evaluation import run_episodes
-    from trainer.tasks import make_env
-    from trainer.training.checkpoint import load_agent
+    from policy_probe import load_run_env
 
-    cfg, agent = load_agent(run_dir)
-    env_cfg = dataclasses.replace(cfg.env, num_envs=envs, compile=False)
-    if h_bar is not None:
-        env_cfg = dataclasses.replace(env_cfg, reward=dataclasses.replace(
-            env_cfg.reward, h_bar=h_bar, h_bar_start=h_bar))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        env = make_env(env_cfg, seed=seed)
+    from trainer.evaluation import run_episodes
+    from trainer.grasps import keypoint_distances
+    from trainer.grasps.outcomes import HELD_DISTANCE
+
+    _, agent, env = load_run_env(run_dir, envs, seed, h_bar)
     rise: list[torch.Tensor] = []
     pads: list[torch.Tensor] = []
     hand: list[torch.Tensor] = []
 
     def on_step() -> None:
-        pos, quat = env.target_pose()
-        tips = env.kinematics.forward(env.backend.qpos).site_pos[:, 1:]  # (E, 5, 3)
-        if env.objects.sdf is not None:
-            distance = env.objects.sdf.query(tips, pos, quat, env.target_objects())
-        else:
-            distance = torch.full_like(tips[..., 0], float("nan"))
+        pos, _ = env.target_pose()
         rise.append((pos[:, 2] - env.state["start_height"]).cpu())
-        pads.append((distance < 0.02).sum(-1).cpu())
+        if env.objects.sdf is not None:
+            pads.append((keypoint_distances(env)[:, 1:] < HELD_DISTANCE).sum(-1).cpu())
+        else:  # a run without SDF grids (the com reward): no pad is counted near
+            pads.append(torch.zeros(env.num_envs, dtype=torch.long))
         hand.append(env.state["ctrl"][:, env.robot.hand.actuators].cpu())
 
     success, length, _ = run_episodes(env, agent.actor, deterministic=True, on_step=on_step)

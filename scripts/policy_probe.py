@@ -31,6 +31,23 @@ COLUMNS = ("palm_z", "lowest_pad_z", "pads_near", "pad_distance", "centre_rise",
            "palm_xy_distance", "std_pose", "std_hand")
 
 
+def load_run_env(run_dir: Path, envs: int, seed: int, h_bar: float | None = None):  # noqa: ANN201
+    """The run's config and last checkpoint's agent, and a fresh env of ``envs`` envs of its
+    env config (uncompiled; ``h_bar``: the lift target instead of the run's, m)."""
+    from trainer.tasks import make_env
+    from trainer.training.checkpoint import load_agent
+
+    cfg, agent = load_agent(run_dir)
+    env_cfg = dataclasses.replace(cfg.env, num_envs=envs, compile=False)
+    if h_bar is not None:
+        env_cfg = dataclasses.replace(env_cfg, reward=dataclasses.replace(
+            env_cfg.reward, h_bar=h_bar, h_bar_start=h_bar))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        env = make_env(env_cfg, seed=seed)
+    return cfg, agent, env
+
+
 def probe(run_dir: Path, envs: int = 32, sample: bool = False, seed: int = 7,
           h_bar: float | None = None, gammas: tuple[float, ...] = (0.99, 0.998),
           grasp_starts: bool = False,
@@ -45,18 +62,10 @@ def probe(run_dir: Path, envs: int = 32, sample: bool = False, seed: int = 7,
     along their scripted grasps where one lifted, and everything is averaged over those envs
     (the earnings' ``envs`` says how many)."""
     from trainer.evaluation import run_episodes
-    from trainer.tasks import make_env
     from trainer.tasks.terms import reward_output_key, reward_terms
-    from trainer.training.checkpoint import load_agent
 
-    cfg, agent = load_agent(run_dir)
-    env_cfg = dataclasses.replace(cfg.env, num_envs=envs, compile=False)
-    if h_bar is not None:
-        env_cfg = dataclasses.replace(env_cfg, reward=dataclasses.replace(
-            env_cfg.reward, h_bar=h_bar, h_bar_start=h_bar))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        env = make_env(env_cfg, seed=seed)
+    cfg, agent, env = load_run_env(run_dir, envs, seed, h_bar)
+    env_cfg = env.cfg
     chosen = torch.ones(envs, dtype=torch.bool)
     if grasp_starts:
         from trainer.randomness import RandomStreams

@@ -44,12 +44,9 @@ def test_tilt_between_orientations() -> None:
 
 
 
-def test_policy_probe_follows_an_episode(builtin_data: Config, tmp_path: Path) -> None:
-    """scripts/policy_probe.py on a tiny trained run: one row per action of a whole episode,
-    the target starting on the table (no rise at the first action), the hand's 5 servo targets
-    in each row, and the printed table's rows every ``--every`` actions plus the last."""
-    import policy_probe
-
+def tiny_trained_run(builtin_data: Config, tmp_path: Path):  # noqa: ANN201
+    """One PPO iteration on the built-in box (4 envs, 12-action episodes): a run directory
+    with a checkpoint, for the scripts that read one."""
     from trainer.config import load_train_config
     from trainer.ppo import train
 
@@ -60,7 +57,16 @@ def test_policy_probe_follows_an_episode(builtin_data: Config, tmp_path: Path) -
              "hidden": (16, 16)},
         run={"total_steps": 32, "checkpoint_every": 1, "seed": 0},
     )
-    run = train(cfg, tmp_path / "run", progress=False)
+    return train(cfg, tmp_path / "run", progress=False)
+
+
+def test_policy_probe_follows_an_episode(builtin_data: Config, tmp_path: Path) -> None:
+    """scripts/policy_probe.py on a tiny trained run: one row per action of a whole episode,
+    the target starting on the table (no rise at the first action), the hand's 5 servo targets
+    in each row, and the printed table's rows every ``--every`` actions plus the last."""
+    import policy_probe
+
+    run = tiny_trained_run(builtin_data, tmp_path)
     rows, success, earned = policy_probe.probe(run.path, envs=3, h_bar=0.05, gammas=(0.9, 1.0))
     assert len(rows) == 12 and 0.0 <= success <= 1.0
     # the discounted return weighs later rewards less; with gamma 1 it is the plain sum, the
@@ -219,17 +225,7 @@ def test_episode_outcomes_puts_each_episode_in_one_class(
     assert eo.classify(up_and_down, False, 0.01, 0.03) == "dropped"
     assert eo.classify(torch.tensor([0.0, 0.05, 0.04]), False, 0.01, 0.03) == "stalled"
 
-    from trainer.config import load_train_config
-    from trainer.ppo import train
-
-    cfg = load_train_config(
-        env={"num_envs": 4, "objects": "builtin_box", "representation": "bbox",
-             "data_dir": builtin_data.data_dir, "max_steps": 12},
-        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
-             "hidden": (16, 16)},
-        run={"total_steps": 32, "checkpoint_every": 1, "seed": 0},
-    )
-    run = train(cfg, tmp_path / "run", progress=False)
+    run = tiny_trained_run(builtin_data, tmp_path)
     episodes = eo.outcomes(run.path, envs=3, h_bar=0.05)
     assert len(episodes) == 3
     for ep in episodes:

@@ -152,6 +152,10 @@ class Encoder(nn.Module):
         return torch.cat(parts, dim=-1)
 
 
+LOG_STD_BOUNDS = (-5.0, 1.0)
+"""The policy's log-std is clamped to these (std 0.0067 to 2.7)."""
+
+
 class PolicyNet(nn.Module):
     """(proprio, object) -> (loc, scale) of a diagonal Gaussian over the 11-d action. The
     scale is a learned log-std per action dimension, state-independent by default; with
@@ -184,14 +188,14 @@ class PolicyNet(nn.Module):
             # The std reads the features the mean learned but does not shape them (detached,
             # as gSDE's default): the score of log-std is noisier than that of the mean.
             log_std = log_std + self.log_std_head(features.detach())
-        scale = log_std.clamp(-5.0, 1.0).exp().expand_as(loc)
+        scale = log_std.clamp(*LOG_STD_BOUNDS).exp().expand_as(loc)
         return loc, scale
 
     def mean_std(self, rollout_scale: torch.Tensor) -> float:
         """The action std to report for an iteration: the learned one (state-independent), or
         the mean over the rollout's states of the std it was collected with."""
         if self.log_std_head is None:
-            return float(self.log_std.detach().clamp(-5.0, 1.0).exp().mean())
+            return float(self.log_std.detach().clamp(*LOG_STD_BOUNDS).exp().mean())
         return float(rollout_scale.mean())
 
 
