@@ -421,8 +421,9 @@ class PPOConfig(_Checked):
     it is below half of it (rl_games' schedule; the paper trained with rl_games); ``fixed``:
     keep ``lr``."""
     kl_target: float = bounded(0.016, gt=0)
-    """The adaptive schedule's KL per epoch. 0.032 on the knife alone: 0/50 at 1.37 M env steps
-    where the baseline lifted 12/50 by 3 cm (results/cpu-iterations-2026-11-27/)."""
+    """The KL per epoch that the adaptive schedule aims at. 0.032 on the knife alone: 0/50 at
+    1.37 M env steps where the baseline lifted 12/50 by 3 cm
+    (results/cpu-iterations-2026-11-27/)."""
     lr_bounds: tuple[float, float] = bounded((1e-6, 1e-2), gt=0)
     gamma: float = bounded(0.99, ge=0, le=1)
     lmbda: float = bounded(0.95, ge=0, le=1)
