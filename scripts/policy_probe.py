@@ -24,14 +24,22 @@ import argparse
 import dataclasses
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
+
+if TYPE_CHECKING:
+    from trainer.config import TrainConfig
+    from trainer.models import Agent
+    from trainer.tasks.base import GraspTask
 
 COLUMNS = ("palm_z", "lowest_pad_z", "pads_near", "pad_distance", "centre_rise", "lowest_rise",
            "palm_xy_distance", "std_pose", "std_hand")
 
 
-def load_run_env(run_dir: Path, envs: int, seed: int, h_bar: float | None = None):  # noqa: ANN201
+def load_run_env(
+    run_dir: Path, envs: int, seed: int, h_bar: float | None = None
+) -> tuple[TrainConfig, Agent, GraspTask]:
     """The run's config and last checkpoint's agent, and a fresh env of ``envs`` envs of its
     env config (uncompiled; ``h_bar``: the lift target instead of the run's, m)."""
     from trainer.tasks import make_env
