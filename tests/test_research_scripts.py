@@ -2,8 +2,9 @@
 home_above_objects``), scripts/early_lifts.py (what the initial policy's low lifts are),
 scripts/policy_probe.py (what a trained policy does over an episode) and
 scripts/object_curriculum.py (each object's curriculum target over a run),
-scripts/start_noise.py (how much exploration noise grasp starts survive) and
-scripts/episode_outcomes.py (how each evaluation episode ends)."""
+scripts/start_noise.py (how much exploration noise grasp starts survive),
+scripts/episode_outcomes.py (how each evaluation episode ends) and scripts/metrics_blocks.py (a
+training curve in blocks of env steps)."""
 
 from __future__ import annotations
 
@@ -235,3 +236,28 @@ def test_episode_outcomes_puts_each_episode_in_one_class(
     lines = eo.main([str(run.path), "--envs", "3", "--h-bar", "0.05"])
     counts = [int(part.rsplit(" ", 1)[1]) for part in lines[0].split(" (of")[0].split(" | ")]
     assert sum(counts) == 3 and len(lines) == 2 + 3
+
+
+def test_metrics_blocks_weights_rates_by_episodes(tmp_path: Path) -> None:
+    """A block's held rate is over the episodes that ended in it, not a mean of iterations: an
+    iteration with 30 episodes at 0.5 and one with 10 at 0.1 make 0.4, not 0.3; the next block
+    starts after 250,000 env steps, and unstable resets add up."""
+    import metrics_blocks
+
+    header = ("iteration,env_steps,wall_time_s,episodes,target_success_rate,object_success_rate,"
+              "episode_return,h_bar,action_std,unstable_resets")
+    rows = ["1,125000,60,30,0.5,0.0,100,0.03,0.6,1",
+            "2,250000,120,10,0.1,0.0,200,0.05,0.4,2",
+            "3,375000,240,0,nan,nan,nan,0.07,0.3,0"]
+    (tmp_path / "metrics.csv").write_text("\n".join([header, *rows]) + "\n")
+    first, second = metrics_blocks.blocks(metrics_blocks.read_rows(tmp_path), 250_000)
+    assert first["target_success_rate"] == pytest.approx(0.4)
+    assert first["episode_return"] == pytest.approx(125.0)
+    assert first["h_bar"] == pytest.approx(0.04) and first["unstable_resets"] == 3
+    assert first["minutes"] == pytest.approx(2.0)
+    assert second["start"] == 250_000 and second["minutes"] == pytest.approx(4.0)
+    assert second["target_success_rate"] != second["target_success_rate"]  # no episode: nan
+    lines = metrics_blocks.main([str(tmp_path / "metrics.csv")])
+    assert lines[4].startswith("| 0.00-0.25 M | 0.400 |") and len(lines) == 7
+    with pytest.raises(SystemExit, match="no metrics.csv"):
+        metrics_blocks.main([str(tmp_path / "missing")])
