@@ -28,7 +28,9 @@ HEADER = ("env steps", "held at its targets", "at h_bar", "return", "mean target
 
 def read_rows(path: Path) -> list[dict[str, float]]:
     """metrics.csv of a run directory (or the file itself) as floats ('' and 'nan' -> nan)."""
-    csv_path = path / "metrics.csv" if path.is_dir() else path
+    from trainer.training.run_dir import RunDir
+
+    csv_path = RunDir(path).metrics if path.is_dir() else path
     if not csv_path.is_file():
         raise SystemExit(f"{path}: no metrics.csv there (give a run directory or the csv itself)")
     with csv_path.open() as f:
