@@ -113,6 +113,36 @@ def test_closing_phase_keeps_the_states_of_the_closing_only(builtin_data: Config
     assert torch.equal(closing.lifted, approach.lifted)
 
 
+def test_lift_phase_keeps_the_lift_and_starts_only_below_the_target(builtin_data: Config) -> None:
+    """``phase = "lift"``: the closing's states and then the script's lift to its end, each with
+    the target's rise; a reset starts only from states below the object's current lift target
+    (one past it would begin an episode already succeeded), so raising the target brings the
+    higher states into use."""
+    from trainer.grasps.top import TopGrasp
+
+    start, _ = TopGrasp().close_window
+    end = TopGrasp().total_steps
+    starts = record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "top", rounds=1,
+                                 phase="lift")
+    assert starts.qpos.shape[1] == len({*range(start, end, 10), end})
+    assert starts.lift is not None
+    risen = starts.valid & (starts.lift > 0.05)
+    assert bool(risen.any())  # the lift's states are kept, the target well up in them
+    env = make_env(_cfg(builtin_data), seed=RandomStreams(1))
+    env.set_grasp_starts(starts, 1.0, torch.Generator().manual_seed(0))
+    for h_bar, reachable in ((0.03, False), (0.2, True)):
+        env.set_lift_target(h_bar)
+        picked_high = torch.zeros(4, dtype=torch.bool)
+        for _ in range(12):
+            env.reset()
+            rise = env.lift_height()
+            flagged = env.state["grasp_start"]
+            assert (rise[flagged] < h_bar + 1e-3).all()
+            picked_high |= flagged & (rise > 0.05)
+        assert bool(picked_high.any()) == reachable
+    env.close()
+
+
 def test_searched_grasp_records_beside_other_families(
     builtin_data: Config, monkeypatch: pytest.MonkeyPatch
 ) -> None:

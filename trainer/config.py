@@ -44,7 +44,7 @@ on ``cpu`` Warp's CPU device, slow but the same code), from ``pip install -e ".[
 CONTEXTS = ("none", "bbox")
 REWARDS = ("sdf", "com", "none", "sdf-thumb")
 CONTACT_SHAPINGS = ("per-step", "difference")
-GRASP_START_PHASES = ("approach", "closing")
+GRASP_START_PHASES = ("approach", "closing", "lift")
 ROBOTS = ("ur5e", "floating")
 HAND_GEOMETRIES = ("capsules", "hulls")
 HAND_ACTIONS = ("absolute", "relative")
@@ -523,8 +523,11 @@ class RunConfig(_Checked):
     """Scripted trials per env recorded for ``grasp_starts`` (each a fresh reset)."""
     grasp_start_phase: str = bounded("approach", choices=GRASP_START_PHASES)
     """Which states of the script: ``approach`` (every 10 actions from the 10th to the end of
-    the closing: the hand on its way down, then closing) or ``closing`` (every 10 actions of
-    the closing window only: the hand at the object)."""
+    the closing: the hand on its way down, then closing), ``closing`` (every 10 actions of
+    the closing window only: the hand at the object) or ``lift`` (every 10 actions from the
+    closing's start to the script's end: closing, then lifting; a reset uses only the states
+    whose target is still below its object's current lift target, so the lift's states come
+    into use as the curriculum raises it)."""
     random_streams: bool = True
     """Every generator of the run draws from its own stream derived from ``seed``
     (``trainer.randomness``). False: each is seeded with ``seed`` itself, as runs before

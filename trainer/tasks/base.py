@@ -471,10 +471,15 @@ class GraspTask(EnvBase):
 
     def _start_from_grasps(self, ids: torch.Tensor) -> None:
         """Put a ``fraction`` of the just-reset envs ``ids`` (those with a valid grasp start)
-        into one of their recorded scripted-grasp states, drawn uniformly."""
+        into one of their recorded scripted-grasp states, drawn uniformly among those whose
+        target had not yet risen to its object's current lift target (``self.h_bar``): a
+        state past it would start an episode that has already succeeded."""
         starts = self._grasp_starts
         assert starts is not None
         valid = starts.valid[ids]  # (n, S)
+        if starts.lift is not None:
+            below = self.h_bar[self.target_objects()[ids]]  # (n,) m
+            valid = valid & (starts.lift[ids] < below[:, None])
         draw = torch.rand(len(ids), generator=self._grasp_rng, device=self.device)
         chosen = (draw < self._grasp_fraction) & valid.any(1)
         pick = torch.multinomial(valid.float() + 1e-12, 1, generator=self._grasp_rng)[:, 0]
@@ -641,18 +646,13 @@ class GraspTask(EnvBase):
             k: v if v.dtype == torch.bool else torch.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0)
             for k, v in obs.items()
         }
-        lift = obj_pos[:, 2] - start_height
+        lift = self._lift(obj_pos, obj_quat, target_id, start_height, start_low)
         if self.cfg.representation == "sdf":
             tip_distance = obs["object"]  # the same query: the fingertips' signed distances
         elif self.objects.sdf is not None:
             tip_distance = self.objects.sdf.query(tips, obj_pos, obj_quat, target_id)
         else:  # no SDF is needed: the com reward and no hold condition (hold_tips = 0)
             tip_distance = torch.zeros_like(tips[..., 0])
-        if self.cfg.reward.lift_clearance > 0:
-            # Until the target is clear of where it rested, its lift is its lowest point's rise:
-            # a tipped object's centre rises, its lowest point does not.
-            low_rise = self.lowest_point(obj_pos, obj_quat, target_id) - start_low
-            lift = torch.where(low_rise >= self.cfg.reward.lift_clearance, lift, low_rise)
         flags = self._get_termination(lift, h_bar, tip_distance, obj_pos, step_count)
         terms = self._get_reward(lift, h_bar, flags[0], tips, tip_distance, obj_pos)
         terms["reward"] = total_reward(terms)
@@ -668,6 +668,28 @@ class GraspTask(EnvBase):
         speed = self.backend.qvel[:, self.slot_linvel].norm(dim=-1)  # (E, K)
         far = (pos[..., 2] > ESCAPE_DISTANCE) | (pos[..., :2].norm(dim=-1) > ESCAPE_DISTANCE)
         return (far | (speed > LAUNCH_SPEED)).any(1)
+
+    def _lift(
+        self, obj_pos: torch.Tensor, obj_quat: torch.Tensor, target_id: torch.Tensor,
+        start_height: torch.Tensor, start_low: torch.Tensor,
+    ) -> torch.Tensor:
+        """(E,) m: the target's lift, the rise of its centre once it is clear of where it rested
+        (obj_pos (E, 3), obj_quat (E, 4), target_id (E,); start_height, start_low (E,) as
+        ``_task_outputs_eager``'s)."""
+        lift = obj_pos[:, 2] - start_height
+        if self.cfg.reward.lift_clearance > 0:
+            # Until the target is clear of where it rested, its lift is its lowest point's rise:
+            # a tipped object's centre rises, its lowest point does not.
+            low_rise = self.lowest_point(obj_pos, obj_quat, target_id) - start_low
+            lift = torch.where(low_rise >= self.cfg.reward.lift_clearance, lift, low_rise)
+        return lift
+
+    def lift_height(self) -> torch.Tensor:
+        """(E,) m: the target's lift in the current state, as the reward and success read it."""
+        pos, quat = self.target_pose()
+        s = self.state
+        return self._lift(pos, quat, self.target_objects(), s["start_height"],
+                          s.get("start_low", s["start_height"]))
 
     def _get_obs(
         self,

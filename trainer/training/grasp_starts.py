@@ -55,23 +55,29 @@ class GraspStarts:
     lifted: torch.Tensor
     """(E, rounds) bool: each round's trial lifted the env's object (what the scripts achieved
     in this task's physics)."""
+    lift: torch.Tensor | None = None
+    """(E, S) m: the target's lift at each capture, as the task's reward reads it (a start is
+    used only below the object's current lift target); None in files recorded before it was
+    kept (every valid capture is used)."""
 
     def save(self, path: Path) -> None:
         """Write to ``path`` whole or not at all (``atomic_path``)."""
         with atomic_path(path) as tmp:
             torch.save({"qpos": self.qpos, "qvel": self.qvel, "task": self.task.to_dict(),
-                        "valid": self.valid, "lifted": self.lifted}, tmp)
+                        "valid": self.valid, "lifted": self.lifted,
+                        **({} if self.lift is None else {"lift": self.lift})}, tmp)
 
     @staticmethod
     def load(path: Path) -> GraspStarts:
         """What ``save`` wrote (on the CPU)."""
         d = torch.load(path, map_location="cpu", weights_only=True)
         task = TensorDict(d["task"], batch_size=d["valid"].shape)
-        return GraspStarts(d["qpos"], d["qvel"], task, d["valid"], d["lifted"])
+        return GraspStarts(d["qpos"], d["qvel"], task, d["valid"], d["lifted"], d.get("lift"))
 
     def to(self, device: torch.device) -> GraspStarts:
         return GraspStarts(self.qpos.to(device), self.qvel.to(device), self.task.to(device),
-                           self.valid.to(device), self.lifted.to(device))
+                           self.valid.to(device), self.lifted.to(device),
+                           None if self.lift is None else self.lift.to(device))
 
 
 def record_grasp_starts(
@@ -82,8 +88,9 @@ def record_grasp_starts(
     ``FAMILY[:VARIANT]`` for every object) ``rounds`` times on every env of a lift task built
     from ``cfg`` (``max_steps`` raised for the script; its resets drawn from the
     ``grasp_starts`` stream of ``streams``) and keep the states along it (every ``stride``
-    actions, to the end of its closing: from the first ``stride`` actions with ``phase``
-    "approach", from the start of the closing with "closing") of the trials that lifted. The
+    actions: from the first ``stride`` actions to the end of the closing with ``phase``
+    "approach", the closing window with "closing", from the start of the closing to the end of
+    the script, its lift included, with "lift") of the trials that lifted. The
     script runs in this task's physics (with absolute hand actions, whatever
     ``robot.hand_action``): a family's own ``load_env_config`` overrides (``Variant.env``) are
     not applied."""
@@ -116,19 +123,19 @@ def record_grasp_starts(
         env.use_reset_generator(streams.torch("grasp_starts", env.device))
         wanted = torch.tensor([names.index(n) for n in family_objects], device=env.device)
         mine = torch.isin(env.target_objects(), wanted)  # (E,) the envs this family serves
-        close_end = script.close_window[1]
         first = stride if phase == "approach" else script.close_window[0]
-        steps = sorted({*range(first, close_end, stride), close_end})
+        last = script.total_steps if phase == "lift" else script.close_window[1]
+        steps = sorted({*range(first, last, stride), last})
         keys = [k for k in TASK_STATE_KEYS if k in env.state.keys()]  # noqa: SIM118
         captures, lifted = [], []
         for _ in range(rounds):
-            states: list[tuple[torch.Tensor, torch.Tensor, TensorDict]] = []
+            states: list[tuple[torch.Tensor, torch.Tensor, TensorDict, torch.Tensor]] = []
 
             def capture(step: int, env=env, steps=steps, states=states, keys=keys) -> None:
                 # on_step(step) runs after action `step`: the state after step + 1 actions.
                 if step + 1 in steps:
                     states.append((env.backend.qpos.clone(), env.backend.qvel.clone(),
-                                   env.state.select(*keys).clone()))
+                                   env.state.select(*keys).clone(), env.lift_height()))
 
             ok = run_scripted_grasp(env, script, on_step=capture)
             captures.append(states)
@@ -141,14 +148,16 @@ def record_grasp_starts(
 def _stack(mine: torch.Tensor, captures: list, lifted: torch.Tensor) -> GraspStarts:
     """One family's captures ``captures[round][capture] = (qpos, qvel, task state)`` as a
     ``GraspStarts`` over every env, valid only on the envs it serves (``mine`` (E,)) whose
-    round lifted (``lifted`` (E, R))."""
+    round lifted (``lifted`` (E, R)); ``captures[round][capture][3]`` (E,) is the target's
+    lift."""
     q = torch.stack([torch.stack([c[0] for c in states], 1) for states in captures], 1)
     v = torch.stack([torch.stack([c[1] for c in states], 1) for states in captures], 1)
     t = torch.stack([torch.stack([c[2] for c in states], 1) for states in captures], 1)
+    rise = torch.stack([torch.stack([c[3] for c in states], 1) for states in captures], 1)
     E, R, C = q.shape[:3]
     valid = (lifted & mine[:, None])[:, :, None].expand(E, R, C).reshape(E, R * C)
     return GraspStarts(q.reshape(E, R * C, -1), v.reshape(E, R * C, -1), t.reshape(E, R * C),
-                       valid, lifted)
+                       valid, lifted, rise.reshape(E, R * C))
 
 
 def _merge(parts: list[GraspStarts]) -> GraspStarts:
@@ -166,14 +175,17 @@ def _merge(parts: list[GraspStarts]) -> GraspStarts:
         valid = torch.cat([p.valid, p.valid.new_zeros(p.valid.shape[0], S - p.valid.shape[1])], 1)
         task = p.task if p.task.shape[1] == S else torch.cat(
             [p.task, p.task[:, -1:].expand(p.task.shape[0], S - p.task.shape[1])], 1)
-        padded = GraspStarts(pad(p.qpos), pad(p.qvel), task, valid, p.lifted)
+        assert p.lift is not None  # (recorded here, always kept)
+        padded = GraspStarts(pad(p.qpos), pad(p.qvel), task, valid, p.lifted, pad(p.lift))
         if out is None:
             out = GraspStarts(padded.qpos.clone(), padded.qvel.clone(), padded.task.clone(),
-                              padded.valid.clone(), padded.lifted.clone())
+                              padded.valid.clone(), padded.lifted.clone(), pad(p.lift).clone())
             continue
         serves = padded.valid.any(1)  # (a family's captures are valid only where it serves)
         out.qpos[serves], out.qvel[serves] = padded.qpos[serves], padded.qvel[serves]
         out.task[serves] = padded.task[serves]
         out.valid[serves], out.lifted[serves] = padded.valid[serves], padded.lifted[serves]
+        assert out.lift is not None and padded.lift is not None
+        out.lift[serves] = padded.lift[serves]
     assert out is not None
     return out
