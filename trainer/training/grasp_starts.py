@@ -153,11 +153,11 @@ def _stack(mine: torch.Tensor, captures: list, lifted: torch.Tensor) -> GraspSta
     q = torch.stack([torch.stack([c[0] for c in states], 1) for states in captures], 1)
     v = torch.stack([torch.stack([c[1] for c in states], 1) for states in captures], 1)
     t = torch.stack([torch.stack([c[2] for c in states], 1) for states in captures], 1)
-    rise = torch.stack([torch.stack([c[3] for c in states], 1) for states in captures], 1)
+    lift = torch.stack([torch.stack([c[3] for c in states], 1) for states in captures], 1)
     E, R, C = q.shape[:3]
     valid = (lifted & mine[:, None])[:, :, None].expand(E, R, C).reshape(E, R * C)
     return GraspStarts(q.reshape(E, R * C, -1), v.reshape(E, R * C, -1), t.reshape(E, R * C),
-                       valid, lifted, rise.reshape(E, R * C))
+                       valid, lifted, lift.reshape(E, R * C))
 
 
 def _merge(parts: list[GraspStarts]) -> GraspStarts:
@@ -179,7 +179,7 @@ def _merge(parts: list[GraspStarts]) -> GraspStarts:
         padded = GraspStarts(pad(p.qpos), pad(p.qvel), task, valid, p.lifted, pad(p.lift))
         if out is None:
             out = GraspStarts(padded.qpos.clone(), padded.qvel.clone(), padded.task.clone(),
-                              padded.valid.clone(), padded.lifted.clone(), pad(p.lift).clone())
+                              padded.valid.clone(), padded.lifted.clone(), padded.lift.clone())
             continue
         serves = padded.valid.any(1)  # (a family's captures are valid only where it serves)
         out.qpos[serves], out.qvel[serves] = padded.qpos[serves], padded.qvel[serves]
