@@ -441,6 +441,47 @@ def killed_run(builtin_data: Config, tmp_path_factory: pytest.TempPathFactory) -
     return path
 
 
+def test_init_agent_starts_from_another_runs_networks_and_normalizers(
+    killed_run: Path, builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys,  # noqa: ANN001
+) -> None:
+    source = killed_run / "checkpoints" / "iter_000002.pt"
+    before = torch.load(source, weights_only=False)["agent"]
+    cfg = tiny_config(builtin_data.data_dir, iterations=1)
+    cfg = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, seed=4))  # (not the source's)
+    fresh = train(cfg, tmp_path / "fresh", progress=False)
+    started = train(
+        dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, init_agent=str(source))),
+        tmp_path / "started", progress=False,
+    )
+    after = {name: torch.load(run.last, weights_only=False)["agent"]
+             for name, run in (("fresh", fresh), ("started", started))}
+    # The normalizers continue the source's statistics: its count plus one iteration's.
+    for key in ("obs_norm.proprio.count", "value_norm.count"):
+        assert after["started"][key] == before[key] + after["fresh"][key], key
+    # One update moves the weights a little: they stay near the source's, unlike a fresh run's.
+    weights = [k for k, v in before.items() if v.dtype.is_floating_point and v.dim() == 2]
+    assert weights
+    for key in weights:
+        moved = (after["started"][key] - before[key]).norm()
+        assert moved < 0.5 * (after["fresh"][key] - before[key]).norm(), key
+    assert json.loads(started.config.read_text())["run"]["init_agent"] == str(source)
+    # The command line takes a run directory (its last checkpoint); a misfit is one line and
+    # leaves no run behind.
+    code, _, err = main(["run", "--init-agent", str(killed_run), "--objects", OBJECTS,
+                         "--num-envs", "4", "--data-dir", str(builtin_data.data_dir),
+                         "--steps", "32", "--run-dir", str(tmp_path / "cli")],
+                        monkeypatch, capsys)
+    assert code == 1 and err.startswith(f"error: init_agent {killed_run}: its agent does not "
+                                        "fit this run's (")
+    assert "network sizes" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "cli").exists()
+    code, _, err = main(["run", "--init-agent", str(tmp_path / "nothing"), "--objects", OBJECTS,
+                         "--data-dir", str(builtin_data.data_dir), "--run-dir",
+                         str(tmp_path / "cli")], monkeypatch, capsys)
+    assert code == 1 and "no such checkpoint file or run directory" in err
+
+
 @pytest.mark.parametrize("damage", ["empty", "truncated"])
 def test_resume_falls_back_from_an_unreadable_last_checkpoint(
     killed_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys, damage: str  # noqa: ANN001

@@ -43,7 +43,7 @@ RUN_OPTIONS = {
     "representation": "--repr", "reward.kind": "--reward", "robot.kind": "--robot",
     "objects": "--objects", "num_envs": "--num-envs", "device": "--device",
     "data_dir": "--data-dir", "compile": "--compile", "total_steps": "--steps", "seed": "--seed",
-    "max_minutes": "--minutes",
+    "max_minutes": "--minutes", "init_agent": "--init-agent",
     "task": "--task", "bin.num_objects": "--bin-objects", "context": "--context",
     "backend": "--backend",
 }
@@ -404,6 +404,9 @@ def grasp_search(
               "extend it to that many steps; other options cannot change it).")
 @click.option("--overwrite", is_flag=True,
               help="Delete the run already in the run directory and start afresh.")
+@click.option("--init-agent", type=click.Path(path_type=Path), default=None,
+              help="Start from the networks and normalizers of this checkpoint file or run "
+              "directory (its last checkpoint); all else starts fresh [none].")
 @click.option("--compile/--no-compile", "compile_env", default=None,
               help="torch.compile the per-step task computations (faster after ~1 min of "
               "compilation; needs a C++ compiler on CPU) [default: compile in the config, "
@@ -414,8 +417,8 @@ def run(
     representation: str | None, reward: str | None, robot: str | None, objects: str | None,
     num_envs: int | None, steps: int | None, minutes: float | None, seed: int | None,
     device: str | None,
-    run_dir: Path | None, resume_dir: Path | None, overwrite: bool, compile_env: bool | None,
-    config_path: Path | None, data_dir: Path | None,
+    run_dir: Path | None, resume_dir: Path | None, overwrite: bool, init_agent: Path | None,
+    compile_env: bool | None, config_path: Path | None, data_dir: Path | None,
 ) -> None:
     """Train a grasping policy with PPO (TorchRL collector, GAE, ClipPPOLoss, Adam).
 
@@ -431,7 +434,8 @@ def run(
             "--backend": backend, "--repr": representation, "--reward": reward, "--robot": robot,
             "--objects": objects, "--num-envs": num_envs, "--seed": seed, "--device": device,
             "--run-dir": run_dir, "--config": config_path, "--data-dir": data_dir,
-            "--overwrite": overwrite or None, compile_option: compile_env,
+            "--overwrite": overwrite or None, "--init-agent": init_agent,
+            compile_option: compile_env,
         }
         for option, value in given.items():
             if option is not None and value is not None:
@@ -452,8 +456,10 @@ def run(
         }.items() if v is not None
     }
     run_over = {
-        k: v for k, v in {"total_steps": steps, "seed": seed, "max_minutes": minutes}.items()
-        if v is not None
+        k: v for k, v in {
+            "total_steps": steps, "seed": seed, "max_minutes": minutes,
+            "init_agent": None if init_agent is None else str(init_agent),
+        }.items() if v is not None
     }
     cfg = load_train_config(config_path, env=env, run=run_over, names=RUN_OPTIONS)
     where = f"--device {device}" if device else f"device {cfg.env.device!r} in {config_path}"

@@ -532,6 +532,13 @@ class RunConfig(_Checked):
     into use as the curriculum raises it). The plate with ``lift`` against ``closing``, one seed,
     1.25 M env steps (results/cpu-plate-lift-starts-2026-11-27/): its start episodes lifted 0.17
     of the time at the end against never, and it still rested flat from home (0/50 at 3 cm)."""
+    init_agent: str = ""
+    """A checkpoint file, or a run directory (its last readable checkpoint), whose agent
+    (networks, action std and normalizers) this run starts from; everything else (optimizer,
+    curriculum, envs, generators) starts fresh. "" (the default): a freshly initialised agent.
+    For fine-tuning, and for measuring what one task's policy brings to another (the agents
+    must match: same representation, task observations and ``[ppo]`` network sizes). A resumed
+    run continues from its own checkpoint."""
     random_streams: bool = True
     """Every generator of the run draws from its own stream derived from ``seed``
     (``trainer.randomness``). False: each is seeded with ``seed`` itself, as runs before

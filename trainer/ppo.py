@@ -32,6 +32,7 @@ from trainer.randomness import run_streams
 from trainer.tasks import GraspTask, make_env
 from trainer.training.checkpoint import (
     TrainState,
+    init_agent_from,
     load_last_checkpoint,
     restore_global_rng,
     write_checkpoint,
@@ -95,6 +96,13 @@ def train(
     # The env first: a config it refuses (a bin larger than the object set, a missing object)
     # leaves no run directory behind that a corrected rerun would have to --overwrite.
     env = make_env(cfg.env, seed=streams)
+    initial_agent, agent_note = None, None
+    if checkpoint is None and cfg.run.init_agent:
+        # Checked before the grasp starts' minutes of recording; built aside from the global
+        # generator, so that the run draws what any run of its config draws.
+        with torch.random.fork_rng(devices=[]):
+            initial_agent = make_agent(env, cfg.ppo)
+        agent_note = init_agent_from(initial_agent, Path(cfg.run.init_agent))
     grasp_note = None
     if cfg.run.grasp_starts > 0:
         # Recorded once per run (minutes for ten objects); a resume loads them (recording
@@ -112,6 +120,8 @@ def train(
                       f"{float(starts.lifted.float().mean()):.2f} of theirs")
     run.write_config(cfg)
     agent = make_agent(env, cfg.ppo)
+    if initial_agent is not None:
+        agent.load_state_dict(initial_agent.state_dict())
     update = PPOUpdate.build(agent, cfg.ppo, minibatch_size(cfg))
     state = make_train_state(cfg, env, agent, update.optimizer)
     if checkpoint is not None:
@@ -126,8 +136,9 @@ def train(
         restore_global_rng(checkpoint, env.device)  # after the collector's set-up draws from it
     total_iterations = math.ceil(cfg.run.total_steps / frames)
     log = ProgressLog(run, total_iterations * frames, state.iteration, frames, resume, progress)
-    if grasp_note is not None:  # (the log opens after the run's state is loaded)
-        log.write(grasp_note)
+    for note in (agent_note, grasp_note):  # (the log opens after the run's state is loaded)
+        if note is not None:
+            log.write(note)
     clock = RunClock(state.wall_time_s, state.iteration * frames)
     stop = StopSignals()
     try:

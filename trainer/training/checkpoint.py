@@ -160,6 +160,36 @@ def read_checkpoint(path: Path, map_location: str | None) -> dict[str, Any] | st
     return state
 
 
+def init_agent_from(agent: Agent, source: Path) -> str:
+    """Load into ``agent`` the networks and normalizers of the checkpoint ``source`` (a file, or
+    a run directory: its last readable checkpoint) (``[run] init_agent``); returns a line for the
+    run's log. An agent of another shape (representation, task, network sizes) is a one-line
+    error naming the first tensor that differs."""
+    source = Path(source)
+    if source.is_dir():
+        state = load_last_checkpoint(RunDir(source), map_location="cpu")
+    elif source.is_file():
+        read = read_checkpoint(source, map_location="cpu")
+        if isinstance(read, str):
+            raise TrainerError(f"init_agent {source}: unreadable ({read}): name a checkpoint "
+                               f"file (runs/NAME/checkpoints/iter_NNNNNN.pt) or a run directory")
+        state = read
+    else:
+        raise TrainerError(f"init_agent {source}: no such checkpoint file or run directory")
+    own, theirs = agent.state_dict(), state["agent"]
+    for name in sorted(set(own) | set(theirs)):
+        mine = tuple(own[name].shape) if name in own else "absent"
+        its = tuple(theirs[name].shape) if name in theirs else "absent"
+        if mine != its:
+            raise TrainerError(
+                f"init_agent {source}: its agent does not fit this run's ({name}: {its} there, "
+                f"{mine} here): start from a run with the same representation, task and [ppo] "
+                f"network sizes"
+            )
+    agent.load_state_dict(theirs)
+    return f"agent: initialised from {source} (iteration {state['iteration']})"
+
+
 def load_agent(
     run_dir: Path, device: str | None = None, iteration: int | None = None
 ) -> tuple[TrainConfig, Agent]:
