@@ -150,10 +150,10 @@ def _stack(mine: torch.Tensor, captures: list, lifted: torch.Tensor) -> GraspSta
     ``GraspStarts`` over every env, valid only on the envs it serves (``mine`` (E,)) whose
     round lifted (``lifted`` (E, R)); ``captures[round][capture][3]`` (E,) is the target's
     lift."""
-    q = torch.stack([torch.stack([c[0] for c in states], 1) for states in captures], 1)
-    v = torch.stack([torch.stack([c[1] for c in states], 1) for states in captures], 1)
-    t = torch.stack([torch.stack([c[2] for c in states], 1) for states in captures], 1)
-    lift = torch.stack([torch.stack([c[3] for c in states], 1) for states in captures], 1)
+    def field(i: int) -> torch.Tensor:  # (E, R, C, ...): item i of every capture
+        return torch.stack([torch.stack([c[i] for c in states], 1) for states in captures], 1)
+
+    q, v, t, lift = (field(i) for i in range(4))
     E, R, C = q.shape[:3]
     valid = (lifted & mine[:, None])[:, :, None].expand(E, R, C).reshape(E, R * C)
     return GraspStarts(q.reshape(E, R * C, -1), v.reshape(E, R * C, -1), t.reshape(E, R * C),
