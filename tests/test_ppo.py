@@ -25,8 +25,8 @@ from trainer.errors import TrainerError
 from trainer.evaluation import evaluate, run_episodes
 from trainer.models import Agent, RunningNorm
 from trainer.ppo import minibatch_size, train
-from trainer.tasks import make_env
-from trainer.training.checkpoint import load_agent
+from trainer.tasks import make_env, observation_spec
+from trainer.training.checkpoint import agent_part, copy_agent_parts, load_agent
 from trainer.training.curriculum import LiftCurriculum
 from trainer.training.outcomes import ObjectOutcomes
 
@@ -480,6 +480,60 @@ def test_init_agent_starts_from_another_runs_networks_and_normalizers(
                          "--data-dir", str(builtin_data.data_dir), "--run-dir",
                          str(tmp_path / "cli")], monkeypatch, capsys)
     assert code == 1 and "no such checkpoint file or run directory" in err
+
+
+def test_copy_agent_parts_takes_only_the_named_parts(builtin_data: Config) -> None:
+    cfg = tiny_config(builtin_data.data_dir)
+    spec = observation_spec(cfg.env, 1)["observation"]
+    torch.manual_seed(0)
+    source = Agent(spec, cfg.ppo)
+    with torch.no_grad():  # normalizers and std that differ from a fresh agent's
+        for key, value in source.state_dict().items():
+            if agent_part(key) != "networks":
+                value.add_(1.0)
+    torch.manual_seed(1)
+    target = Agent(spec, cfg.ppo)
+    fresh = {k: v.clone() for k, v in target.state_dict().items()}
+    copy_agent_parts(source, target, ("networks", "normalizers"))
+    theirs, after = source.state_dict(), target.state_dict()
+    parts = {agent_part(key) for key in after}
+    assert parts == {"networks", "action_std", "normalizers"}
+    for key, value in after.items():
+        expected = fresh[key] if agent_part(key) == "action_std" else theirs[key]
+        assert torch.equal(value, expected), key
+    # Every key naming one tensor (the actor's and the policy net's std, ...) stays consistent.
+    assert torch.equal(after["policy_net.log_std"], after["actor.module.0.module.log_std"])
+    assert torch.equal(after["obs_norm.proprio.mean"],
+                      after["critic.module.encoder.norm.proprio.mean"])
+    assert agent_part("critic_denorm.module.value_norm.count") == "normalizers"
+    assert agent_part("critic_denorm.module.value_net.body.0.weight") == "networks"
+
+
+def test_init_agent_parts_keeps_the_runs_own_fresh_normalizers(
+    killed_run: Path, builtin_data: Config, tmp_path: Path, capsys  # noqa: ANN001
+) -> None:
+    source = killed_run / "checkpoints" / "iter_000002.pt"
+    before = torch.load(source, weights_only=False)["agent"]
+    cfg = tiny_config(builtin_data.data_dir, iterations=1)
+    cfg = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, seed=4))
+    fresh = train(cfg, tmp_path / "fresh", progress=False)
+    networks_only = dataclasses.replace(cfg.run, init_agent=str(source),
+                                        init_agent_parts=("networks",))
+    started = train(dataclasses.replace(cfg, run=networks_only), tmp_path / "started",
+                    progress=False)
+    after = {name: torch.load(run.last, weights_only=False)["agent"]
+             for name, run in (("fresh", fresh), ("started", started))}
+    # Its normalizers are its own, fresh ones (their counts a fresh run's, not the source's
+    # plus those), its weights near the source's.
+    for key in ("obs_norm.proprio.count", "value_norm.count"):
+        assert after["started"][key] == after["fresh"][key] < before[key], key
+    key = "policy_net.body.0.weight"
+    moved = (after["started"][key] - before[key]).norm()
+    assert moved < 0.5 * (after["fresh"][key] - before[key]).norm()
+    out, err = capsys.readouterr()
+    assert "its networks only" in out + err
+    with pytest.raises(TrainerError, match="init_agent_parts"):
+        dataclasses.replace(cfg.run, init_agent_parts=("networks", "weights"))
 
 
 @pytest.mark.parametrize("damage", ["empty", "truncated"])

@@ -45,6 +45,9 @@ CONTEXTS = ("none", "bbox")
 REWARDS = ("sdf", "com", "none", "sdf-thumb")
 CONTACT_SHAPINGS = ("per-step", "difference")
 GRASP_START_PHASES = ("approach", "closing", "lift")
+AGENT_PARTS = ("networks", "action_std", "normalizers")
+"""What ``[run] init_agent_parts`` can take from another run's agent: the policy's and value's
+layers, the policy's state-independent action std, the observation and value normalizers."""
 ROBOTS = ("ur5e", "floating")
 HAND_GEOMETRIES = ("capsules", "hulls")
 HAND_ACTIONS = ("absolute", "relative")
@@ -539,11 +542,24 @@ class RunConfig(_Checked):
     For fine-tuning, and for measuring what one task's policy brings to another (the agents
     must match: same representation, task observations and ``[ppo]`` network sizes). A resumed
     run continues from its own checkpoint."""
+    init_agent_parts: tuple[str, ...] = AGENT_PARTS
+    """Which parts of ``init_agent``'s agent this run takes (of ``networks``, ``action_std``,
+    ``normalizers``); the others are this run's own fresh ones, exactly those a run without
+    ``init_agent`` starts with. For separating what carries from one task to another."""
     random_streams: bool = True
     """Every generator of the run draws from its own stream derived from ``seed``
     (``trainer.randomness``). False: each is seeded with ``seed`` itself, as runs before
     2026-11-25 were (their config.json lacks this key and reads as false, so they resume and
     evaluate as they ran)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        parts = self.init_agent_parts
+        if not parts or len(set(parts)) != len(parts) or not set(parts) <= set(AGENT_PARTS):
+            raise field_error(
+                TrainerError, "init_agent_parts", parts,
+                f"must name each of {', '.join(AGENT_PARTS)} at most once, at least one",
+            )
 
 
 @dataclass(frozen=True)

@@ -25,13 +25,14 @@ from torchrl.collectors import Collector
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
-from trainer.config import PPOConfig, TrainConfig, check_device
+from trainer.config import AGENT_PARTS, PPOConfig, TrainConfig, check_device
 from trainer.errors import TrainerError
 from trainer.models import Agent
 from trainer.randomness import run_streams
 from trainer.tasks import GraspTask, make_env
 from trainer.training.checkpoint import (
     TrainState,
+    copy_agent_parts,
     init_agent_from,
     load_last_checkpoint,
     restore_global_rng,
@@ -103,6 +104,8 @@ def train(
         with torch.random.fork_rng(devices=[]):
             initial_agent = make_agent(env, cfg.ppo)
         agent_note = init_agent_from(initial_agent, Path(cfg.run.init_agent))
+        if set(cfg.run.init_agent_parts) != set(AGENT_PARTS):
+            agent_note += f", its {' and '.join(cfg.run.init_agent_parts)} only"
     grasp_note = None
     if cfg.run.grasp_starts > 0:
         # Recorded once per run (minutes for ten objects); a resume loads them (recording
@@ -121,7 +124,7 @@ def train(
     run.write_config(cfg)
     agent = make_agent(env, cfg.ppo)
     if initial_agent is not None:
-        agent.load_state_dict(initial_agent.state_dict())
+        copy_agent_parts(initial_agent, agent, cfg.run.init_agent_parts)
     update = PPOUpdate.build(agent, cfg.ppo, minibatch_size(cfg))
     state = make_train_state(cfg, env, agent, update.optimizer)
     if checkpoint is not None:

@@ -21,7 +21,7 @@ from typing import Any
 import torch
 
 from geomgrasp.files import atomic_path
-from trainer.config import TrainConfig, check_device
+from trainer.config import AGENT_PARTS, TrainConfig, check_device
 from trainer.errors import TrainerError
 from trainer.models import Agent
 from trainer.tasks import GraspTask, observation_spec
@@ -188,6 +188,28 @@ def init_agent_from(agent: Agent, source: Path) -> str:
             )
     agent.load_state_dict(theirs)
     return f"agent: initialised from {source} (iteration {state['iteration']})"
+
+
+def agent_part(key: str) -> str:
+    """The ``AGENT_PARTS`` entry an agent state-dict key belongs to (the same tensor appears
+    under several keys, every one of them classed alike)."""
+    names = key.split(".")
+    if "log_std" in names:
+        return "action_std"
+    if {"obs_norm", "value_norm", "norm"} & set(names):
+        return "normalizers"
+    return "networks"
+
+
+def copy_agent_parts(source: Agent, target: Agent, parts: tuple[str, ...] = AGENT_PARTS) -> None:
+    """Copy ``parts`` (of ``AGENT_PARTS``) of ``source``'s state into ``target`` (two agents of
+    one shape); the rest of ``target`` stays as it is."""
+    theirs = source.state_dict()
+    merged = {
+        key: theirs[key] if agent_part(key) in parts else value
+        for key, value in target.state_dict().items()
+    }
+    target.load_state_dict(merged)
 
 
 def load_agent(
