@@ -3,8 +3,9 @@ home_above_objects``), scripts/early_lifts.py (what the initial policy's low lif
 scripts/policy_probe.py (what a trained policy does over an episode) and
 scripts/object_curriculum.py (each object's curriculum target over a run),
 scripts/start_noise.py (how much exploration noise grasp starts survive),
-scripts/episode_outcomes.py (how each evaluation episode ends) and scripts/metrics_blocks.py (a
-training curve in blocks of env steps)."""
+scripts/episode_outcomes.py (how each evaluation episode ends), scripts/metrics_blocks.py (a
+training curve in blocks of env steps) and scripts/eval_upright.py (an evaluation split by how
+the targets start)."""
 
 from __future__ import annotations
 
@@ -261,3 +262,31 @@ def test_metrics_blocks_weights_rates_by_episodes(tmp_path: Path) -> None:
     assert lines[4].startswith("| 0.00-0.25 M | 0.400 |") and len(lines) == 7
     with pytest.raises(SystemExit, match="no metrics.csv"):
         metrics_blocks.main([str(tmp_path / "missing")])
+
+
+def test_eval_upright_splits_exactly_the_episodes_of_trainer_eval(
+    builtin_data: Config, tmp_path: Path
+) -> None:
+    """scripts/eval_upright.py replays trainer eval's episodes: per object its upright and
+    upside-down episodes add up to the eval's episodes, their held ones to its successes."""
+    import eval_upright
+
+    from trainer.config import load_train_config
+    from trainer.evaluation import evaluate
+    from trainer.ppo import train
+
+    cfg = load_train_config(
+        env={"num_envs": 4, "objects": "builtin_dice,builtin_mug", "representation": "bbox",
+             "data_dir": builtin_data.data_dir, "max_steps": 12},
+        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
+             "hidden": (16, 16)},
+        run={"total_steps": 32, "seed": 0},
+    )
+    run = train(cfg, tmp_path / "run", progress=False)
+    result = evaluate(run.path, episodes_per_object=12)
+    rows = eval_upright.split_by_start_up(run.path, episodes_per_object=12)
+    assert [row[0] for row in rows] == result.names
+    assert [row[1] + row[3] for row in rows] == result.episodes == [12, 12]
+    assert [row[2] + row[4] for row in rows] == result.successes
+    # Both ways up occur (a dice or mug reset lands on any side), so the split is exercised.
+    assert all(row[1] > 0 and row[3] > 0 for row in rows)
