@@ -545,7 +545,10 @@ class RunConfig(_Checked):
     init_agent_parts: tuple[str, ...] = AGENT_PARTS
     """Which parts of ``init_agent``'s agent this run takes (of ``networks``, ``action_std``,
     ``normalizers``); the others are this run's own fresh ones, exactly those a run without
-    ``init_agent`` starts with. For separating what carries from one task to another."""
+    ``init_agent`` starts with. For separating what carries from one task to another: the
+    plate alone from the ten together's agent learned as well with a fresh action std, not at
+    all with fresh normalizers (the networks' inputs rescaled) or fresh networks
+    (results/cpu-plate-agent-parts-2026-11-28/)."""
     random_streams: bool = True
     """Every generator of the run draws from its own stream derived from ``seed``
     (``trainer.randomness``). False: each is seeded with ``seed`` itself, as runs before
