@@ -24,7 +24,7 @@ from trainer.config import RewardConfig, load_train_config
 from trainer.errors import TrainerError
 from trainer.evaluation import evaluate, run_episodes
 from trainer.models import Agent, RunningNorm
-from trainer.ppo import minibatch_size, train
+from trainer.ppo import minibatch_size, train, warmup_config
 from trainer.tasks import make_env, observation_spec
 from trainer.training.checkpoint import agent_part, copy_agent_parts, load_agent
 from trainer.training.curriculum import LiftCurriculum
@@ -534,6 +534,47 @@ def test_init_agent_parts_keeps_the_runs_own_fresh_normalizers(
     assert "its networks only" in out + err
     with pytest.raises(TrainerError, match="init_agent_parts"):
         dataclasses.replace(cfg.run, init_agent_parts=("networks", "weights"))
+
+
+def test_warmup_trains_its_objects_first_then_the_run_from_that_agent(
+    builtin_data: Config, tmp_path: Path, capsys  # noqa: ANN001
+) -> None:
+    cfg = tiny_config(builtin_data.data_dir, iterations=2)
+    cfg = dataclasses.replace(
+        cfg, env=dataclasses.replace(cfg.env, objects="builtin_sphere"),
+        run=dataclasses.replace(cfg.run, warmup_objects="builtin_cylinder", warmup_steps=3 * 32),
+    )
+    run = train(cfg, tmp_path / "warmed", progress=False)
+    warm = json.loads((run.warmup / "config.json").read_text())
+    assert warm["env"]["objects"] == "builtin_cylinder" and warm["run"]["total_steps"] == 96
+    assert warm["run"]["warmup_steps"] == 0
+    assert metrics_iterations(run.warmup) == [1, 2, 3] and metrics_iterations(run.path) == [1, 2]
+    # The run's clock goes on from the warmup's (its time budget counts both).
+    warm_rows = list(csv.DictReader((run.warmup / "metrics.csv").read_text().splitlines()))
+    rows = list(csv.DictReader(run.metrics.read_text().splitlines()))
+    assert float(rows[0]["wall_time_s"]) > float(warm_rows[-1]["wall_time_s"])
+    assert f"agent: initialised from {run.warmup} (iteration 3)" in capsys.readouterr().out
+    # Exactly the two runs by hand: the warmup's config, then the run started from its agent.
+    by_hand = train(warmup_config(cfg), tmp_path / "by-hand-warmup", progress=False)
+    plain = dataclasses.replace(cfg.run, warmup_objects="", warmup_steps=0,
+                                init_agent=str(by_hand.path))
+    then = train(dataclasses.replace(cfg, run=plain), tmp_path / "by-hand", progress=False)
+    a = torch.load(run.last, weights_only=False)["agent"]
+    b = torch.load(then.last, weights_only=False)["agent"]
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    # A run stopped while warming up (its time budget) resumes there, then runs on: the same.
+    short = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, max_minutes=1e-6))
+    stopped = train(short, tmp_path / "stopped", progress=False)
+    assert metrics_iterations(stopped.warmup) == [1] and not stopped.has_checkpoint()
+    assert "stopped while warming up" in capsys.readouterr().out
+    longer = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, max_minutes=60.0))
+    train(longer, stopped.path, resume=True, progress=False)
+    c = torch.load(stopped.last, weights_only=False)["agent"]
+    assert all(torch.equal(a[k], c[k]) for k in a)
+    with pytest.raises(TrainerError, match="warmup_steps"):
+        dataclasses.replace(cfg.run, warmup_steps=0)
+    with pytest.raises(TrainerError, match="drop one of the two"):
+        dataclasses.replace(cfg.run, init_agent="runs/x")
 
 
 @pytest.mark.parametrize("damage", ["empty", "truncated"])

@@ -549,6 +549,18 @@ class RunConfig(_Checked):
     plate alone from the ten together's agent learned as well with a fresh action std, not at
     all with fresh normalizers (the networks' inputs rescaled) or fresh networks
     (results/cpu-plate-agent-parts-2026-11-28/)."""
+    warmup_objects: str = ""
+    """Not the paper's (an option, 2026-11-28): objects (a set or names, as ``objects``) the
+    run trains on first, for ``warmup_steps`` env steps, in its folder's ``warmup/`` (a run of
+    its own: this config with these objects and no warmup); the run then starts from that
+    agent (the parts ``init_agent_parts`` names) on its own objects. "" (the default): none.
+    Its steps come on top of ``total_steps``, its minutes count in ``max_minutes`` (the run's
+    ``wall_time_s`` goes on from the warmup's). For objects a fresh agent does not learn alone:
+    the plate alone 0/50 from a fresh agent at 1.32 M env steps, 35/50 after 0.66 M from the
+    tuna can alone's agent of 1.06 M (50/50 on it); the knife 41/50 at 1.96 M against 30/50
+    and 0/50 (two seeds), one seed (results/cpu-plate-agent-parts-2026-11-28/)."""
+    warmup_steps: int = bounded(0, ge=0)
+    """Env steps of the warmup on ``warmup_objects`` (0: none)."""
     random_streams: bool = True
     """Every generator of the run draws from its own stream derived from ``seed``
     (``trainer.randomness``). False: each is seeded with ``seed`` itself, as runs before
@@ -562,6 +574,17 @@ class RunConfig(_Checked):
             raise field_error(
                 TrainerError, "init_agent_parts", parts,
                 f"must name each of {', '.join(AGENT_PARTS)} at most once, at least one",
+            )
+        if bool(self.warmup_objects) != (self.warmup_steps > 0):
+            raise field_error(
+                TrainerError, "warmup_objects" if self.warmup_objects else "warmup_steps",
+                self.warmup_objects or self.warmup_steps,
+                "needs the other: set warmup_objects and warmup_steps together",
+            )
+        if self.warmup_objects and self.init_agent:
+            raise field_error(
+                TrainerError, "init_agent", self.init_agent,
+                "a run with warmup_objects starts from its warmup's agent: drop one of the two",
             )
 
 

@@ -14,6 +14,7 @@ of its iteration, with a checkpoint.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +29,7 @@ from torchrl.objectives.value import GAE
 from trainer.config import AGENT_PARTS, PPOConfig, TrainConfig, check_device
 from trainer.errors import TrainerError
 from trainer.models import Agent
+from trainer.objects import resolve_names
 from trainer.randomness import run_streams
 from trainer.tasks import GraspTask, make_env
 from trainer.training.checkpoint import (
@@ -77,13 +79,17 @@ def train(
     SIGINT or SIGTERM during the loop ends the run at the end of the current iteration with a
     checkpoint; then the signal is delivered as usual (Ctrl-C: KeyboardInterrupt).
     ``stop_after``: leave after this many iterations of this call, as a killed run would (the
-    work since the last checkpoint is lost); used by the resume test."""
+    work since the last checkpoint is lost); used by the resume test.
+
+    With ``[run] warmup_objects`` the run first trains (or resumes) its warmup in
+    ``run_dir/warmup`` and starts from that agent; stopped while warming up, it returns early."""
     run = RunDir(Path(run_dir))
     checkpoint = None
     if resume:
         cfg = run.config_to_resume(cfg)
-        checkpoint = load_last_checkpoint(run)
-        _check_left_to_do(run, cfg, checkpoint)
+        if not (cfg.run.warmup_steps and not run.has_checkpoint()):  # (else: still warming up)
+            checkpoint = load_last_checkpoint(run)
+            _check_left_to_do(run, cfg, checkpoint)
     else:
         run.make_room(overwrite)
     assert cfg is not None
@@ -91,6 +97,18 @@ def train(
         cfg.env.device, f"device {cfg.env.device!r} of {run.path}",
         "resume it where that device exists" if resume else "train with --device cpu",
     )
+    warmup_wall_time = 0.0
+    if checkpoint is None and cfg.run.warmup_steps:
+        # Before this run's env exists (one env in memory at a time); its config.json first,
+        # so that a run stopped while warming up resumes with --resume of this folder (but
+        # not before both object sets are known to exist).
+        for spec in (cfg.run.warmup_objects, cfg.env.objects):
+            resolve_names(spec, cfg.env.data_dir)
+        run.write_config(cfg)
+        warmed = _warm_up(cfg, run, progress)
+        if warmed is None:
+            return run
+        warmup_wall_time = warmed
     torch.set_num_threads(cfg.run.torch_threads)
     streams = run_streams(cfg)
     streams.seed_global_torch("actions")
@@ -98,12 +116,13 @@ def train(
     # leaves no run directory behind that a corrected rerun would have to --overwrite.
     env = make_env(cfg.env, seed=streams)
     initial_agent, agent_note = None, None
-    if checkpoint is None and cfg.run.init_agent:
+    agent_source = run.warmup if cfg.run.warmup_steps else cfg.run.init_agent
+    if checkpoint is None and agent_source:
         # Checked before the grasp starts' minutes of recording; built aside from the global
         # generator, so that the run draws what any run of its config draws.
         with torch.random.fork_rng(devices=[]):
             initial_agent = make_agent(env, cfg.ppo)
-        agent_note = init_agent_from(initial_agent, Path(cfg.run.init_agent))
+        agent_note = init_agent_from(initial_agent, Path(agent_source))
         if set(cfg.run.init_agent_parts) != set(AGENT_PARTS):
             agent_note += f", its {' and '.join(cfg.run.init_agent_parts)} only"
     grasp_note = None
@@ -130,8 +149,10 @@ def train(
     if checkpoint is not None:
         state.load_state_dict(checkpoint)
         run.truncate_metrics(state.iteration)
-    elif cfg.ppo.stagger_episodes:
-        env.stagger_next_reset()  # (a resumed run's envs continue where they stood)
+    else:
+        state.wall_time_s = warmup_wall_time
+        if cfg.ppo.stagger_episodes:
+            env.stagger_next_reset()  # (a resumed run's envs continue where they stood)
     env.set_lift_target(state.curriculum.targets())
     frames = iteration_frames(cfg)
     collector = make_collector(env, agent, frames)
@@ -213,6 +234,48 @@ def train(
         collector.shutdown()
     stop.reraise()
     return run
+
+
+def warmup_config(cfg: TrainConfig) -> TrainConfig:
+    """The config of a run's warmup (``[run] warmup_objects``): the run's, on the warmup's
+    objects for ``warmup_steps`` env steps, with no warmup of its own."""
+    return dataclasses.replace(
+        cfg,
+        env=dataclasses.replace(cfg.env, objects=cfg.run.warmup_objects),
+        run=dataclasses.replace(
+            cfg.run, total_steps=cfg.run.warmup_steps, warmup_objects="", warmup_steps=0
+        ),
+    )
+
+
+def _warm_up(cfg: TrainConfig, run: RunDir, progress: bool) -> float | None:
+    """Train (or resume) the warmup of ``run`` in ``run.warmup``; returns its training time (s)
+    once it is complete and time is left for the run itself, else None (stopped: the run
+    resumes it)."""
+    warm_cfg = warmup_config(cfg)
+    warm = RunDir(run.warmup)
+    if warm.has_checkpoint():
+        state = load_last_checkpoint(warm, map_location="cpu")
+        if not _warmup_over(warm_cfg, state):
+            train(warm_cfg, warm.path, resume=True, progress=progress)
+    else:  # (a warmup killed before its first checkpoint starts again)
+        train(warm_cfg, warm.path, progress=progress, overwrite=True)
+    state = load_last_checkpoint(warm, map_location="cpu")
+    if state["iteration"] < math.ceil(warm_cfg.run.total_steps / iteration_frames(warm_cfg)):
+        print(f"stopped while warming up ({warm.path}): continue the run with --resume "
+              f"{run.path}", flush=True)
+        return None
+    if _out_of_time(cfg, state["wall_time_s"]):
+        print(f"stopped: the warmup used the time budget of {cfg.run.max_minutes:g} minutes; "
+              f"extend it with --resume {run.path} --minutes M", flush=True)
+        return None
+    return float(state["wall_time_s"])
+
+
+def _warmup_over(warm_cfg: TrainConfig, state: dict[str, Any]) -> bool:
+    """The warmup whose last checkpoint is ``state`` has done its steps or used its time."""
+    done = state["iteration"] >= math.ceil(warm_cfg.run.total_steps / iteration_frames(warm_cfg))
+    return done or _out_of_time(warm_cfg, state["wall_time_s"])
 
 
 # --- builders --------------------------------------------------------------------------------

@@ -32,7 +32,7 @@ GROWABLE = ("run.total_steps", "run.max_minutes")
 class RunDir:
     """A training run on disk: ``config.json`` (the resolved config), ``metrics.csv`` (one row
     per iteration), ``tb/`` (TensorBoard), ``checkpoints/iter_NNNNNN.pt`` and ``last.pt``, and
-    with ``[run] grasp_starts`` ``grasp_starts.pt``."""
+    with ``[run] grasp_starts`` ``grasp_starts.pt``, with ``[run] warmup_objects`` ``warmup/``."""
 
     path: Path
 
@@ -60,6 +60,15 @@ class RunDir:
     def grasp_starts(self) -> Path:
         """The states ``[run] grasp_starts`` recorded (a resume loads them, not records)."""
         return self.path / "grasp_starts.pt"
+
+    @property
+    def warmup(self) -> Path:
+        """The run of ``[run] warmup_objects`` this run starts from (a run folder of its own)."""
+        return self.path / "warmup"
+
+    def has_checkpoint(self) -> bool:
+        """Whether any checkpoint file (readable or not) was written here."""
+        return self.checkpoints.is_dir() and any(self.checkpoints.glob("*.pt"))
 
     def checkpoint(self, iteration: int) -> Path:
         """The checkpoint written at the end of ``iteration``."""
@@ -103,7 +112,9 @@ class RunDir:
     # --- a fresh run -------------------------------------------------------------------------
     def holds_run(self) -> bool:
         """Whether a run (even one killed before its first checkpoint) wrote here."""
-        return any(p.exists() for p in (self.config, self.metrics, self.checkpoints))
+        return any(
+            p.exists() for p in (self.config, self.metrics, self.checkpoints, self.warmup)
+        )
 
     def make_room(self, overwrite: bool) -> None:
         """Prepare for a fresh run: a directory that holds a run is refused (appending to its
@@ -111,7 +122,7 @@ class RunDir:
         if not self.holds_run():
             return
         if not overwrite:
-            can_resume = self.checkpoints.is_dir() and any(self.checkpoints.glob("*.pt"))
+            can_resume = self.has_checkpoint() or RunDir(self.warmup).has_checkpoint()
             how = f"resume it with --resume {self.path}, or " if can_resume else ""
             raise TrainerError(
                 f"{self.path} already holds a run: {how}start it afresh with --overwrite, or "
@@ -123,7 +134,7 @@ class RunDir:
         """Delete what a run writes here (nothing else in the directory)."""
         for path in (self.config, self.metrics, self.grasp_starts):
             path.unlink(missing_ok=True)
-        for path in (self.checkpoints, self.tensorboard, self.path / "eval"):
+        for path in (self.checkpoints, self.tensorboard, self.path / "eval", self.warmup):
             shutil.rmtree(path, ignore_errors=True)
 
     # --- metrics.csv -------------------------------------------------------------------------
