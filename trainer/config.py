@@ -555,11 +555,13 @@ class RunConfig(_Checked):
     its own: this config with these objects and no warmup); the run then starts from that
     agent (the parts ``init_agent_parts`` names) on its own objects. "" (the default): none.
     Its steps come on top of ``total_steps``, its minutes count in ``max_minutes`` (the run's
-    ``wall_time_s`` goes on from the warmup's). For objects a fresh agent does not learn alone:
-    the plate alone 0/50 from a fresh agent at 1.32 M env steps, 35/50 after 0.66 M from the
-    tuna can alone's agent of 1.06 M (50/50 on it); the knife from the tuna can's agent of
-    2.0 M 41/50 and 37/50 at 1.96 M (seeds 0, 1) against a fresh agent's 30/50 and 0/50
-    (results/cpu-plate-agent-parts-2026-11-28/, results/cpu-warmup-2026-11-28/)."""
+    ``wall_time_s`` goes on from the warmup's). For objects a fresh agent learns slowly or not
+    at all: the knife alone after 1.06 M env steps on the tuna can, 60 minutes in all:
+    45/50 and 46/50 held at 0.2 m (seeds 0, 1; a fresh agent at 60 minutes: 30/50 and 0/50).
+    What carries depends on the source agent: the plate with the same warmup 0/50 (two
+    seeds), though from another tuna can agent of 1.06 M (a quarter of its episodes from
+    grasp starts) it held 35/50 after 0.66 M (results/cpu-warmup-2026-11-28/,
+    results/cpu-plate-agent-parts-2026-11-28/)."""
     warmup_steps: int = bounded(0, ge=0)
     """Env steps of the warmup on ``warmup_objects`` (0: none)."""
     random_streams: bool = True
