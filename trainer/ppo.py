@@ -54,6 +54,11 @@ def iteration_frames(cfg: TrainConfig) -> int:
     return cfg.env.num_envs * cfg.ppo.frames_per_env
 
 
+def total_iterations(cfg: TrainConfig) -> int:
+    """PPO iterations a run of ``cfg`` does: ``run.total_steps`` rounded up to whole rollouts."""
+    return math.ceil(cfg.run.total_steps / iteration_frames(cfg))
+
+
 def minibatch_size(cfg: TrainConfig) -> int:
     """Frames per minibatch: the rollout in ``minibatches`` parts, but at least
     ``min_minibatch`` frames (and at most the whole rollout)."""
@@ -158,8 +163,8 @@ def train(
     collector = make_collector(env, agent, frames)
     if checkpoint is not None:
         restore_global_rng(checkpoint, env.device)  # after the collector's set-up draws from it
-    total_iterations = math.ceil(cfg.run.total_steps / frames)
-    log = ProgressLog(run, total_iterations * frames, state.iteration, frames, resume, progress)
+    iterations = total_iterations(cfg)
+    log = ProgressLog(run, iterations * frames, state.iteration, frames, resume, progress)
     for note in (agent_note, grasp_note):  # (the log opens after the run's state is loaded)
         if note is not None:
             log.write(note)
@@ -168,7 +173,7 @@ def train(
     try:
         with stop:
             for data in collector:
-                if state.iteration >= total_iterations:
+                if state.iteration >= iterations:
                     break
                 if stop_after is not None:
                     if stop_after <= 0:
@@ -208,7 +213,7 @@ def train(
                 log.log(row, postfix, object_h_bars if curriculum.per_object else ())
                 for message in env.backend.drain_warnings():  # e.g. Warp buffers to enlarge
                     log.write(f"warning: {message}")
-                done = state.iteration == total_iterations
+                done = state.iteration == iterations
                 out_of_time = _out_of_time(cfg, state.wall_time_s)
                 if (state.iteration % cfg.run.checkpoint_every == 0 or done or out_of_time
                         or stop.received):
@@ -261,7 +266,7 @@ def _warm_up(cfg: TrainConfig, run: RunDir, progress: bool) -> float | None:
     else:  # (a warmup killed before its first checkpoint starts again)
         train(warm_cfg, warm.path, progress=progress, overwrite=True)
     state = load_last_checkpoint(warm, map_location="cpu")
-    if state["iteration"] < math.ceil(warm_cfg.run.total_steps / iteration_frames(warm_cfg)):
+    if state["iteration"] < total_iterations(warm_cfg):
         print(f"stopped while warming up ({warm.path}): continue the run with --resume "
               f"{run.path}", flush=True)
         return None
@@ -274,7 +279,7 @@ def _warm_up(cfg: TrainConfig, run: RunDir, progress: bool) -> float | None:
 
 def _warmup_over(warm_cfg: TrainConfig, state: dict[str, Any]) -> bool:
     """The warmup whose last checkpoint is ``state`` has done its steps or used its time."""
-    done = state["iteration"] >= math.ceil(warm_cfg.run.total_steps / iteration_frames(warm_cfg))
+    done = state["iteration"] >= total_iterations(warm_cfg)
     return done or _out_of_time(warm_cfg, state["wall_time_s"])
 
 
@@ -390,7 +395,7 @@ def _adapt_lr(optimizer: torch.optim.Optimizer, kl: float, ppo: PPOConfig) -> No
 def _check_left_to_do(run: RunDir, cfg: TrainConfig, checkpoint: dict[str, Any]) -> None:
     """Refuse to resume a run that has done its steps or used its time budget."""
     done, frames = checkpoint["iteration"], iteration_frames(cfg)
-    if done >= math.ceil(cfg.run.total_steps / frames):
+    if done >= total_iterations(cfg):
         raise TrainerError(
             f"{run.path} is complete ({done * frames} steps of {cfg.run.total_steps}): "
             f"pass --steps with more than {done * frames} to extend it"
