@@ -509,6 +509,60 @@ def test_copy_agent_parts_takes_only_the_named_parts(builtin_data: Config) -> No
     assert agent_part("critic_denorm.module.value_net.body.0.weight") == "networks"
 
 
+@pytest.mark.parametrize("representation", ["bbox", "pc32"])
+def test_silence_unseen_features_keeps_the_agent_and_ignores_what_it_never_saw_vary(
+    representation: str,
+) -> None:
+    # An agent trained on one object has seen its bbox extents only as one constant: the
+    # normalizer maps them to 0 and their first-layer weights never train. Silenced, the agent
+    # computes exactly what it did on its own observations and nothing from those features.
+    from trainer.tasks.spec import observation_spec
+
+    cfg = load_train_config(env={"representation": representation, "num_envs": 4},
+                            ppo={"hidden": (32, 32, 32), "pointnet_hidden": (16, 16)})
+    spec = observation_spec(cfg.env, num_envs=64)["observation"]
+    torch.manual_seed(0)
+    agent = Agent(spec, cfg.ppo)
+    assert agent.silence_unseen_features() == 0  # fresh normalizers: nothing seen, nothing known
+    proprio = torch.randn(64, *spec["proprio"].shape[1:])
+    obj = torch.randn(64, *spec["object"].shape[1:])
+    constant = [7, 8, 9] if representation == "bbox" else [2]  # extents / every point's z
+    obj[..., constant] = 0.3
+    agent.obs_norm.update(proprio, obj)
+    before = (agent.policy_net(proprio, obj)[0], agent.value_net(proprio, obj))
+    assert agent.silence_unseen_features() == len(constant)
+    after = (agent.policy_net(proprio, obj)[0], agent.value_net(proprio, obj))
+    for a, b in zip(before, after, strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    other = obj.clone()
+    other[..., constant] = 2.0  # another object: clipped to +5 by the normalizer
+    assert agent.obs_norm.object(other)[..., constant].eq(5.0).all()
+    for a, b in zip(after, (agent.policy_net(proprio, other)[0], agent.value_net(proprio, other)),
+                    strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    # A feature it saw vary still matters.
+    varied = obj.clone()
+    varied[..., 0] += 1.0
+    assert not torch.equal(agent.policy_net(proprio, varied)[0], after[0])
+
+
+def test_init_agent_unseen_silence_is_a_config_of_a_started_run(
+    killed_run: Path, builtin_data: Config, tmp_path: Path, capsys  # noqa: ANN001
+) -> None:
+    cfg = tiny_config(builtin_data.data_dir, iterations=1)
+    source = killed_run / "checkpoints" / "iter_000002.pt"
+    silenced = dataclasses.replace(cfg.run, init_agent=str(source), init_agent_unseen="silence")
+    train(dataclasses.replace(cfg, run=silenced), tmp_path / "started", progress=False)
+    out, err = capsys.readouterr()
+    assert "observation features it never saw vary silenced" in out + err
+    with pytest.raises(TrainerError, match="init_agent_unseen.*set init_agent or warmup_objects"):
+        dataclasses.replace(cfg.run, init_agent_unseen="silence")
+    with pytest.raises(TrainerError, match="init_agent_unseen.*keep networks and normalizers"):
+        dataclasses.replace(silenced, init_agent_parts=("networks", "action_std"))
+    with pytest.raises(TrainerError, match="init_agent_unseen"):
+        dataclasses.replace(silenced, init_agent_unseen="zero")
+
+
 def test_init_agent_parts_keeps_the_runs_own_fresh_normalizers(
     killed_run: Path, builtin_data: Config, tmp_path: Path, capsys  # noqa: ANN001
 ) -> None:

@@ -49,6 +49,7 @@ AGENT_PARTS = ("networks", "action_std", "normalizers")
 """What ``[run] init_agent_parts`` can take from another run's agent: the policy's and value's
 layers, the policy's state-independent action std, the observation and value normalizers."""
 ROBOTS = ("ur5e", "floating")
+INIT_AGENT_UNSEEN = ("keep", "silence")
 HAND_GEOMETRIES = ("capsules", "hulls")
 HAND_ACTIONS = ("absolute", "relative")
 HAND_DRIVES = ("equalities", "all-joints")
@@ -561,9 +562,24 @@ class RunConfig(_Checked):
     What carries depends on the source agent: the plate with the same warmup 0/50 (two
     seeds), though from another tuna can agent of 1.06 M (a quarter of its episodes from
     grasp starts) it held 35/50 after 0.66 M (results/cpu-warmup-2026-11-28/,
-    results/cpu-plate-agent-parts-2026-11-28/)."""
+    results/cpu-plate-agent-parts-2026-11-28/), and not from that agent's second seed; that
+    one carry came through the weights of the can's constant extents, never trained
+    (``init_agent_unseen``, results/cpu-plate-source-2026-11-28/)."""
     warmup_steps: int = bounded(0, ge=0)
     """Env steps of the warmup on ``warmup_objects`` (0: none)."""
+    init_agent_unseen: str = bounded("keep", choices=INIT_AGENT_UNSEEN)
+    """Not the paper's (an option, 2026-11-28): what a run started from another agent
+    (``init_agent`` or its warmup's) does with the observation features that agent never saw
+    vary (for one object trained alone: its bbox's extents, its superquadric's shape and size).
+    ``keep`` (the default): as they are, their weights the untrained initial ones; the new
+    objects' values, clipped to ±5 by the normalizer, pass through them. ``silence``: those
+    weights zeroed first (``Agent.silence_unseen_features``), so that the agent starts as
+    exactly the policy it was, and they train from 0. Needs ``networks`` and ``normalizers``
+    in ``init_agent_parts``. A diagnosis more than a remedy: the plate from the tuna can
+    agent that carried to it (29/50 at 0.33 M kept) held 0/50 silenced, its start episodes
+    lifted 0.4 % instead of 33 % after 0.2 M; from the warmups' tuna can agents that carried
+    nothing it changed nothing (results/cpu-plate-source-2026-11-28/): what a one-object
+    agent brought to the plate came through those untrained weights, by chance."""
     random_streams: bool = True
     """Every generator of the run draws from its own stream derived from ``seed``
     (``trainer.randomness``). False: each is seeded with ``seed`` itself, as runs before
@@ -583,6 +599,17 @@ class RunConfig(_Checked):
                 TrainerError, "warmup_objects" if self.warmup_objects else "warmup_steps",
                 self.warmup_objects or self.warmup_steps,
                 "needs the other: set warmup_objects and warmup_steps together",
+            )
+        if self.init_agent_unseen == "silence" and not {"networks", "normalizers"} <= set(parts):
+            raise field_error(
+                TrainerError, "init_agent_unseen", self.init_agent_unseen,
+                "silences the agent's networks by its normalizers' statistics: keep networks "
+                "and normalizers in init_agent_parts",
+            )
+        if self.init_agent_unseen == "silence" and not (self.init_agent or self.warmup_objects):
+            raise field_error(
+                TrainerError, "init_agent_unseen", self.init_agent_unseen,
+                "applies to a run started from another agent: set init_agent or warmup_objects",
             )
         if self.warmup_objects and self.init_agent:
             raise field_error(

@@ -250,3 +250,32 @@ class Agent(nn.Module):
         self.critic_denorm = TensorDictModule(
             Denormalize(self.value_net, self.value_norm), in_keys=keys, out_keys=["state_value"]
         )
+
+    @torch.no_grad()
+    def silence_unseen_features(self) -> int:
+        """Zero the first-layer weights of every normalized observation feature this agent never
+        saw vary (running variance 0 after some updates; for one object trained alone: its
+        bbox's or superquadric's size and shape). Such a feature always reached the networks as
+        0, so its weights never trained; on other objects its new value, clipped to ±5, would
+        pass through those random initial weights and perturb every first-layer unit (the plate
+        from a tuna can agent: its extents at +5, +5, -5). Zeroed, the agent computes exactly
+        what it computed on its own observations, and the weights train from 0 where the value
+        varies or differs from 0. Returns how many features were silenced."""
+        norm = self.obs_norm
+        # (normalizer, the first layer reading it, the column of its first feature there)
+        readers: list[tuple[RunningNorm, nn.Linear, int]] = []
+        for net in (self.policy_net, self.value_net):
+            enc, first = net.encoder, net.body[0]
+            readers.append((norm.proprio, first, 0))
+            if enc.points is not None:
+                readers.append((norm.object, enc.points[0], 0))
+            else:
+                readers.append((norm.object, first, norm.proprio.mean.numel()))
+            if enc.context is not None and norm.context is not None:
+                readers.append((norm.context, enc.context[0], 0))
+        silenced = 0
+        for part, layer, offset in readers:
+            unseen = ((part.var == 0) & (part.count > 0)).flatten().nonzero().flatten()
+            layer.weight[:, offset + unseen] = 0.0
+            silenced += len(unseen)
+        return silenced // 2  # each feature is read by the policy and by the value network

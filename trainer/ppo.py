@@ -149,6 +149,9 @@ def train(
     agent = make_agent(env, cfg.ppo)
     if initial_agent is not None:
         copy_agent_parts(initial_agent, agent, cfg.run.init_agent_parts)
+        if cfg.run.init_agent_unseen == "silence":
+            silenced = agent.silence_unseen_features()
+            agent_note += f"; {silenced} observation features it never saw vary silenced"
     update = PPOUpdate.build(agent, cfg.ppo, minibatch_size(cfg))
     state = make_train_state(cfg, env, agent, update.optimizer)
     if checkpoint is not None:
@@ -248,7 +251,8 @@ def warmup_config(cfg: TrainConfig) -> TrainConfig:
         cfg,
         env=dataclasses.replace(cfg.env, objects=cfg.run.warmup_objects),
         run=dataclasses.replace(
-            cfg.run, total_steps=cfg.run.warmup_steps, warmup_objects="", warmup_steps=0
+            cfg.run, total_steps=cfg.run.warmup_steps, warmup_objects="", warmup_steps=0,
+            init_agent_unseen="keep",  # (it starts fresh)
         ),
     )
 
