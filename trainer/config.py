@@ -577,9 +577,9 @@ class RunConfig(_Checked):
     exactly the policy it was, and they train from 0. Needs ``networks`` and ``normalizers``
     in ``init_agent_parts``. A diagnosis more than a remedy: the plate from the tuna can
     agent that carried to it (29/50 at 0.33 M kept) held 0/50 silenced, its start episodes
-    lifted 0.4 % instead of 33 % after 0.2 M; from the warmups' tuna can agents that carried
-    nothing it changed nothing (results/cpu-plate-source-2026-11-28/): what a one-object
-    agent brought to the plate came through those untrained weights, by chance."""
+    lifted 0.3 % instead of 48 % in plate iterations 25-40; from the warmups' tuna can
+    agents that carried nothing it changed nothing (results/cpu-plate-source-2026-11-28/):
+    what a one-object agent brought to the plate came through those untrained weights."""
     random_streams: bool = True
     """Every generator of the run draws from its own stream derived from ``seed``
     (``trainer.randomness``). False: each is seeded with ``seed`` itself, as runs before
