@@ -262,20 +262,19 @@ class Agent(nn.Module):
         what it computed on its own observations, and the weights train from 0 where the value
         varies or differs from 0. Returns how many features were silenced."""
         norm = self.obs_norm
-        # (normalizer, the first layer reading it, the column of its first feature there)
-        readers: list[tuple[RunningNorm, nn.Linear, int]] = []
-        for net in (self.policy_net, self.value_net):
+
+        def unseen(part: RunningNorm) -> torch.Tensor:
+            return ((part.var == 0) & (part.count > 0)).flatten().nonzero().flatten()
+
+        proprio, obj = unseen(norm.proprio), unseen(norm.object)
+        context = unseen(norm.context) if norm.context is not None else proprio[:0]
+        for net in (self.policy_net, self.value_net):  # (they share the normalizers)
             enc, first = net.encoder, net.body[0]
-            readers.append((norm.proprio, first, 0))
+            first.weight[:, proprio] = 0.0
             if enc.points is not None:
-                readers.append((norm.object, enc.points[0], 0))
+                enc.points[0].weight[:, obj] = 0.0
             else:
-                readers.append((norm.object, first, norm.proprio.mean.numel()))
-            if enc.context is not None and norm.context is not None:
-                readers.append((norm.context, enc.context[0], 0))
-        silenced = 0
-        for part, layer, offset in readers:
-            unseen = ((part.var == 0) & (part.count > 0)).flatten().nonzero().flatten()
-            layer.weight[:, offset + unseen] = 0.0
-            silenced += len(unseen)
-        return silenced // 2  # each feature is read by the policy and by the value network
+                first.weight[:, norm.proprio.mean.numel() + obj] = 0.0
+            if enc.context is not None:
+                enc.context[0].weight[:, context] = 0.0
+        return len(proprio) + len(obj) + len(context)
