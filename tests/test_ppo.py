@@ -6,7 +6,9 @@ import csv
 import dataclasses
 import json
 import math
+import os
 import shutil
+import signal
 import sys
 from pathlib import Path
 
@@ -29,6 +31,7 @@ from trainer.tasks import make_env, observation_spec
 from trainer.training.checkpoint import agent_part, copy_agent_parts, load_agent
 from trainer.training.curriculum import LiftCurriculum
 from trainer.training.outcomes import ObjectOutcomes
+from trainer.training.stop import StopSignals
 
 OBJECTS = "builtin_cylinder,builtin_sphere"
 
@@ -629,6 +632,39 @@ def test_warmup_trains_its_objects_first_then_the_run_from_that_agent(
         dataclasses.replace(cfg.run, warmup_steps=0)
     with pytest.raises(TrainerError, match="drop one of the two"):
         dataclasses.replace(cfg.run, init_agent="runs/x")
+
+
+def test_a_warmup_stopped_by_a_signal_names_its_run_to_resume(
+    builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
+) -> None:
+    class TermAtOnce(StopSignals):
+        """SIGTERM arrives in the first iteration of the (warmup's) training loop."""
+
+        def __enter__(self) -> StopSignals:
+            super().__enter__()
+            os.kill(os.getpid(), signal.SIGTERM)
+            return self
+
+    delivered: list[int] = []  # (the re-raised SIGTERM lands here instead of ending pytest)
+    previous = signal.signal(signal.SIGTERM, lambda signum, frame: delivered.append(signum))
+    monkeypatch.setattr("trainer.ppo.StopSignals", TermAtOnce)
+    try:
+        cfg = tiny_config(builtin_data.data_dir, iterations=2)
+        cfg = dataclasses.replace(
+            cfg, env=dataclasses.replace(cfg.env, objects="builtin_sphere"),
+            run=dataclasses.replace(cfg.run, warmup_objects="builtin_cylinder",
+                                    warmup_steps=3 * 32),
+        )
+        run = train(cfg, tmp_path / "warmed", progress=False)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert delivered == [signal.SIGTERM]
+    assert metrics_iterations(run.warmup) == [1] and not run.has_checkpoint()
+    out, err = capsys.readouterr()
+    hints = [line for line in (out + err).splitlines() if "--resume" in line]
+    # Resuming the warmup's folder would train the warmup alone and never reach the run.
+    assert hints and all(line.rstrip().endswith(f"--resume {run.path}") for line in hints), hints
+    assert all(f"--resume {run.warmup}" not in line for line in hints), hints
 
 
 @pytest.mark.parametrize("damage", ["empty", "truncated"])

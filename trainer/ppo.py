@@ -73,6 +73,7 @@ def train(
     progress: bool = True,
     stop_after: int | None = None,
     overwrite: bool = False,
+    resume_as: Path | None = None,
 ) -> RunDir:
     """Train (or, with ``resume``, continue) the run in ``run_dir``; returns it.
 
@@ -85,10 +86,13 @@ def train(
     checkpoint; then the signal is delivered as usual (Ctrl-C: KeyboardInterrupt).
     ``stop_after``: leave after this many iterations of this call, as a killed run would (the
     work since the last checkpoint is lost); used by the resume test.
+    ``resume_as``: the folder the stop messages tell the user to ``--resume`` (default
+    ``run_dir``); a warmup names its run, which resumes it and then goes on to the run itself.
 
     With ``[run] warmup_objects`` the run first trains (or resumes) its warmup in
     ``run_dir/warmup`` and starts from that agent; stopped while warming up, it returns early."""
     run = RunDir(Path(run_dir))
+    resume_target = Path(resume_as) if resume_as is not None else run.path
     checkpoint = None
     if resume:
         cfg = run.config_to_resume(cfg)
@@ -227,14 +231,14 @@ def train(
                     log.write(
                         f"stopped: time budget of {cfg.run.max_minutes:g} minutes used "
                         f"({steps:,} env steps, iteration {state.iteration}); extend it with "
-                        f"--resume {run.path} --minutes M"
+                        f"--resume {resume_target} --minutes M"
                     )
                     break
                 if stop.received:
                     log.write(
                         f"stopped: {stop.received.name} ({steps:,} env steps, iteration "
                         f"{state.iteration}, checkpoint written); continue it with --resume "
-                        f"{run.path}"
+                        f"{resume_target}"
                     )
                     break
     finally:
@@ -266,9 +270,9 @@ def _warm_up(cfg: TrainConfig, run: RunDir, progress: bool) -> float | None:
     if warm.has_checkpoint():
         state = load_last_checkpoint(warm, map_location="cpu")
         if not _warmup_over(warm_cfg, state):
-            train(warm_cfg, warm.path, resume=True, progress=progress)
+            train(warm_cfg, warm.path, resume=True, progress=progress, resume_as=run.path)
     else:  # (a warmup killed before its first checkpoint starts again)
-        train(warm_cfg, warm.path, progress=progress, overwrite=True)
+        train(warm_cfg, warm.path, progress=progress, overwrite=True, resume_as=run.path)
     state = load_last_checkpoint(warm, map_location="cpu")
     if state["iteration"] < total_iterations(warm_cfg):
         print(f"stopped while warming up ({warm.path}): continue the run with --resume "
