@@ -4,8 +4,8 @@ scripts/policy_probe.py (what a trained policy does over an episode) and
 scripts/object_curriculum.py (each object's curriculum target over a run),
 scripts/start_noise.py (how much exploration noise grasp starts survive),
 scripts/episode_outcomes.py (how each evaluation episode ends), scripts/metrics_blocks.py (a
-training curve in blocks of env steps) and scripts/eval_upright.py (an evaluation split by how
-the targets start)."""
+training curve in blocks of env steps), scripts/eval_upright.py (an evaluation split by how
+the targets start) and scripts/grasp_offset.py (where a policy holds each object)."""
 
 from __future__ import annotations
 
@@ -290,3 +290,46 @@ def test_eval_upright_splits_exactly_the_episodes_of_trainer_eval(
     assert [row[2] + row[4] for row in rows] == result.successes
     # Both ways up occur (a dice or mug reset lands on any side), so the split is exercised.
     assert all(row[1] > 0 and row[3] > 0 for row in rows)
+
+
+def test_grasp_offset_measures_the_pads_in_the_object_box_frame(
+    builtin_data: Config, tmp_path: Path
+) -> None:
+    """scripts/grasp_offset.py: the pads' centroid in the box frame (a turned, shifted box), and
+    per object the episodes trainer eval runs (an untrained policy holds none: no offset)."""
+    import math
+
+    import grasp_offset
+    import torch
+
+    from trainer.config import load_train_config
+    from trainer.evaluation import evaluate
+    from trainer.ppo import train
+
+    # A box 0.2 x 0.1 x 0.04 m, its centre 0.05 m along the object's x axis, the object turned
+    # 90 degrees about z and standing at (1, 0, 0): the box's x axis points along the world's y.
+    quat = torch.tensor([[math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)]])
+    centre = torch.tensor([[1.0, 0.05, 0.0]])  # the box centre in the world
+    spread = torch.randn(1, 5, 3) * 0.01  # five pads around their centroid, 8 cm along the box
+    tips = centre[:, None] + torch.tensor([0.0, 0.08, 0.0]) + spread - spread.mean(1, keepdim=True)
+    distance, fraction = grasp_offset.box_frame_offset(
+        tips, torch.tensor([[1.0, 0.0, 0.0]]), quat, torch.tensor([[0.05, 0.0, 0.0]]),
+        torch.eye(3)[None], torch.tensor([[0.2, 0.1, 0.04]]),
+    )
+    assert distance.item() == pytest.approx(0.08, abs=1e-6)
+    assert fraction.item() == pytest.approx(0.08 / 0.1, abs=1e-5)  # along the box's long axis
+
+    cfg = load_train_config(
+        env={"num_envs": 4, "objects": "builtin_dice,builtin_mug", "representation": "bbox",
+             "data_dir": builtin_data.data_dir, "max_steps": 12},
+        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
+             "hidden": (16, 16)},
+        run={"total_steps": 32, "seed": 0},
+    )
+    run = train(cfg, tmp_path / "run", progress=False)
+    result = evaluate(run.path, episodes_per_object=6)
+    rows = grasp_offset.grasp_offsets(run.path, episodes_per_object=6)
+    assert [row[0] for row in rows] == result.names
+    assert [row[1] for row in rows] == result.episodes
+    assert [row[2] for row in rows] == result.successes
+    assert all(math.isnan(row[3]) for row in rows if row[2] == 0)

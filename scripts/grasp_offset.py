@@ -1,0 +1,102 @@
+"""Where a run's policy holds each object: the fingertip pads' centroid in the object's box frame
+at the step each episode succeeds (lifted and held), over ``trainer eval``'s episodes.
+
+A plate is held at its rim, 12-13 cm from its box centre; the question this answers is which
+source agents hold their own objects away from the centre, too. Per object it prints the held
+episodes, the median distance of the pads' centroid from the box centre (cm) and the median of
+its largest coordinate as a fraction of the box's half extent along that axis (0: the centre,
+1: a face of the box). Same seed, envs and deterministic policy as
+``trainer eval RUN --episodes-per-object N``.
+
+    python scripts/grasp_offset.py RUN_DIR [--episodes-per-object 50] [--iteration N]
+                                   [--objects 072-a_toy_airplane]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+
+import torch
+
+
+def box_frame_offset(
+    tips: torch.Tensor, obj_pos: torch.Tensor, obj_quat: torch.Tensor,
+    bbox_center: torch.Tensor, bbox_rotation: torch.Tensor, bbox_extents: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The pads' centroid relative to each env's object box: (distance from the box centre (E,),
+    m; largest |coordinate| / half extent along its axis (E,)). tips (E, 5, 3) world; obj_pos
+    (E, 3), obj_quat (E, 4) wxyz; bbox_center (E, 3), bbox_rotation (E, 3, 3) (axes as columns)
+    and bbox_extents (E, 3) in the object's frame."""
+    from geomgrasp.rotations import quat_to_matrix
+
+    rot = quat_to_matrix(obj_quat)  # (E, 3, 3)
+    centre = obj_pos + (rot @ bbox_center[..., None])[..., 0]
+    axes = rot @ bbox_rotation  # the box's axes in the world, as columns
+    local = (axes.transpose(1, 2) @ (tips.mean(1) - centre)[..., None])[..., 0]
+    return local.norm(dim=-1), (local.abs() / (bbox_extents / 2)).amax(dim=-1)
+
+
+def grasp_offsets(
+    run_dir: Path, episodes_per_object: int = 50, iteration: int | None = None,
+    objects: str | None = None, seed: int = 12345,
+) -> list[tuple[str, int, int, float, float]]:
+    """Per object: (name, episodes, held, median distance (m), median fraction of the half
+    extent); the medians are nan without a held episode."""
+    from trainer.evaluation import run_episodes
+    from trainer.objects import resolve_names
+    from trainer.randomness import RandomStreams
+    from trainer.tasks import make_env
+    from trainer.training.checkpoint import load_agent
+
+    cfg, agent = load_agent(run_dir, "cpu", iteration)
+    names = resolve_names(objects or cfg.env.objects, cfg.env.data_dir)
+    n = episodes_per_object
+    # trainer eval runs up to 1024 envs in one batch: the same episodes only within one.
+    if n * len(names) > 1024:
+        raise SystemExit("error: more than 1024 episodes in all: name fewer --objects")
+    env_cfg = dataclasses.replace(cfg.env, objects=",".join(names), num_envs=n * len(names))
+    env = make_env(env_cfg, seed=RandomStreams(seed, legacy=not cfg.run.random_streams))
+    distance = torch.full((env.num_envs,), float("nan"))
+    fraction = torch.full((env.num_envs,), float("nan"))
+
+    def at_success(mask: torch.Tensor) -> None:  # the env in the state of the successful step
+        ids = env.target_objects().cpu()
+        tips = env.kinematics.forward(env.backend.qpos).site_pos[:, 1:].cpu()
+        obj_pos, obj_quat = (x.cpu() for x in env.target_pose())
+        o = env.objects
+        d, f = box_frame_offset(tips, obj_pos, obj_quat, o.bbox_center.cpu()[ids],
+                                o.bbox_rotation.cpu()[ids], o.bbox_extents.cpu()[ids])
+        distance[mask], fraction[mask] = d[mask], f[mask]
+
+    success, _, ids = run_episodes(env, agent.actor, True, at_success=at_success)
+    env.close()
+    rows = []
+    for k, name in enumerate(names):
+        held = (ids == k) & success
+        rows.append((name, int((ids == k).sum()), int(held.sum()),
+                     float(distance[held].nanmedian()) if held.any() else float("nan"),
+                     float(fraction[held].nanmedian()) if held.any() else float("nan")))
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run_dir", type=Path)
+    parser.add_argument("--episodes-per-object", type=int, default=50)
+    parser.add_argument("--iteration", type=int, default=None)
+    parser.add_argument("--objects", default=None)
+    parser.add_argument("--seed", type=int, default=12345, help="trainer eval's default")
+    args = parser.parse_args()
+    rows = grasp_offsets(args.run_dir, args.episodes_per_object, args.iteration, args.objects,
+                         args.seed)
+    print("| object | held / episodes | pads from the box centre (cm, median) "
+          "| largest coordinate / half extent (median) |")
+    print("|---|---:|---:|---:|")
+    for name, episodes, held, dist, frac in rows:
+        print(f"| {name} | {held}/{episodes} | {100 * dist:.1f} | {frac:.2f} |")
+
+
+if __name__ == "__main__":
+    main()
