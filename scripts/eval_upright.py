@@ -16,18 +16,21 @@ from __future__ import annotations
 import argparse
 import dataclasses
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
 
+if TYPE_CHECKING:
+    from trainer.models import Agent
+    from trainer.tasks import GraspTask
 
-def split_by_start_up(
-    run_dir: Path, episodes_per_object: int = 50, iteration: int | None = None,
-    objects: str | None = None, seed: int = 12345,
-) -> list[tuple[str, int, int, int, int]]:
-    """Per object: (name, upright episodes, upright held, upside-down episodes, upside-down
-    held) over the episodes ``trainer eval`` runs with these arguments (one batch of envs)."""
-    from geomgrasp.rotations import quat_to_matrix
-    from trainer.evaluation import run_episodes
+
+def eval_env(
+    run_dir: Path, episodes_per_object: int, iteration: int | None, objects: str | None,
+    seed: int,
+) -> tuple[list[str], GraspTask, Agent]:
+    """(object names, env, agent) of ``trainer eval RUN --episodes-per-object N``'s episodes:
+    the run's env on those objects, one batch of N envs per object, the eval's seed."""
     from trainer.objects import resolve_names
     from trainer.randomness import RandomStreams
     from trainer.tasks import make_env
@@ -41,6 +44,19 @@ def split_by_start_up(
         raise SystemExit("error: more than 1024 episodes in all: name fewer --objects")
     env_cfg = dataclasses.replace(cfg.env, objects=",".join(names), num_envs=n * len(names))
     env = make_env(env_cfg, seed=RandomStreams(seed, legacy=not cfg.run.random_streams))
+    return names, env, agent
+
+
+def split_by_start_up(
+    run_dir: Path, episodes_per_object: int = 50, iteration: int | None = None,
+    objects: str | None = None, seed: int = 12345,
+) -> list[tuple[str, int, int, int, int]]:
+    """Per object: (name, upright episodes, upright held, upside-down episodes, upside-down
+    held) over the episodes ``trainer eval`` runs with these arguments (one batch of envs)."""
+    from geomgrasp.rotations import quat_to_matrix
+    from trainer.evaluation import run_episodes
+
+    names, env, agent = eval_env(run_dir, episodes_per_object, iteration, objects, seed)
     start_up: list[torch.Tensor] = []
 
     def first_step() -> None:  # the target has not moved yet one action after the reset

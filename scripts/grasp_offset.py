@@ -15,10 +15,12 @@ its largest coordinate as a fraction of the box's half extent along that axis (0
 from __future__ import annotations
 
 import argparse
-import dataclasses
+import sys
 from pathlib import Path
 
 import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # eval_upright beside it
 
 
 def box_frame_offset(
@@ -44,20 +46,11 @@ def grasp_offsets(
 ) -> list[tuple[str, int, int, float, float]]:
     """Per object: (name, episodes, held, median distance (m), median fraction of the half
     extent); the medians are nan without a held episode."""
-    from trainer.evaluation import run_episodes
-    from trainer.objects import resolve_names
-    from trainer.randomness import RandomStreams
-    from trainer.tasks import make_env
-    from trainer.training.checkpoint import load_agent
+    from eval_upright import eval_env
 
-    cfg, agent = load_agent(run_dir, "cpu", iteration)
-    names = resolve_names(objects or cfg.env.objects, cfg.env.data_dir)
-    n = episodes_per_object
-    # trainer eval runs up to 1024 envs in one batch: the same episodes only within one.
-    if n * len(names) > 1024:
-        raise SystemExit("error: more than 1024 episodes in all: name fewer --objects")
-    env_cfg = dataclasses.replace(cfg.env, objects=",".join(names), num_envs=n * len(names))
-    env = make_env(env_cfg, seed=RandomStreams(seed, legacy=not cfg.run.random_streams))
+    from trainer.evaluation import run_episodes
+
+    names, env, agent = eval_env(run_dir, episodes_per_object, iteration, objects, seed)
     distance = torch.full((env.num_envs,), float("nan"))
     fraction = torch.full((env.num_envs,), float("nan"))
 

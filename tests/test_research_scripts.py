@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from geomprep.config import Config
+from trainer.training.run_dir import RunDir
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 
@@ -264,15 +265,9 @@ def test_metrics_blocks_weights_rates_by_episodes(tmp_path: Path) -> None:
         metrics_blocks.main([str(tmp_path / "missing")])
 
 
-def test_eval_upright_splits_exactly_the_episodes_of_trainer_eval(
-    builtin_data: Config, tmp_path: Path
-) -> None:
-    """scripts/eval_upright.py replays trainer eval's episodes: per object its upright and
-    upside-down episodes add up to the eval's episodes, their held ones to its successes."""
-    import eval_upright
-
+def _tiny_dice_mug_run(builtin_data: Config, tmp_path: Path) -> RunDir:
+    """A one-iteration bbox run on the built-in dice and mug (an untrained policy)."""
     from trainer.config import load_train_config
-    from trainer.evaluation import evaluate
     from trainer.ppo import train
 
     cfg = load_train_config(
@@ -283,6 +278,19 @@ def test_eval_upright_splits_exactly_the_episodes_of_trainer_eval(
         run={"total_steps": 32, "seed": 0},
     )
     run = train(cfg, tmp_path / "run", progress=False)
+    return run
+
+
+def test_eval_upright_splits_exactly_the_episodes_of_trainer_eval(
+    builtin_data: Config, tmp_path: Path
+) -> None:
+    """scripts/eval_upright.py replays trainer eval's episodes: per object its upright and
+    upside-down episodes add up to the eval's episodes, their held ones to its successes."""
+    import eval_upright
+
+    from trainer.evaluation import evaluate
+
+    run = _tiny_dice_mug_run(builtin_data, tmp_path)
     result = evaluate(run.path, episodes_per_object=12)
     rows = eval_upright.split_by_start_up(run.path, episodes_per_object=12)
     assert [row[0] for row in rows] == result.names
@@ -302,9 +310,7 @@ def test_grasp_offset_measures_the_pads_in_the_object_box_frame(
     import grasp_offset
     import torch
 
-    from trainer.config import load_train_config
     from trainer.evaluation import evaluate
-    from trainer.ppo import train
 
     # A box 0.2 x 0.1 x 0.04 m, its centre 0.05 m along the object's x axis, the object turned
     # 90 degrees about z and standing at (1, 0, 0): the box's x axis points along the world's y.
@@ -319,14 +325,7 @@ def test_grasp_offset_measures_the_pads_in_the_object_box_frame(
     assert distance.item() == pytest.approx(0.08, abs=1e-6)
     assert fraction.item() == pytest.approx(0.08 / 0.1, abs=1e-5)  # along the box's long axis
 
-    cfg = load_train_config(
-        env={"num_envs": 4, "objects": "builtin_dice,builtin_mug", "representation": "bbox",
-             "data_dir": builtin_data.data_dir, "max_steps": 12},
-        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
-             "hidden": (16, 16)},
-        run={"total_steps": 32, "seed": 0},
-    )
-    run = train(cfg, tmp_path / "run", progress=False)
+    run = _tiny_dice_mug_run(builtin_data, tmp_path)
     result = evaluate(run.path, episodes_per_object=6)
     rows = grasp_offset.grasp_offsets(run.path, episodes_per_object=6)
     assert [row[0] for row in rows] == result.names
