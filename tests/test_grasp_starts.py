@@ -78,10 +78,34 @@ def test_grasp_start_episodes_count_in_no_success_rate() -> None:
     assert list(curriculum.outcomes) == [True]
 
 
+def test_bin_starts_restore_the_clutter_and_the_target(builtin_data: Config) -> None:
+    """In the bin the script grasps each episode's target in its clutter: a start puts back
+    every object of the bin as it was captured and the target slot the script grasped (another
+    slot would reward lifting the wrong object), and the episode's object is that target's."""
+    cfg = load_env_config(num_envs=8, task="bin", objects="builtin", representation="bbox",
+                          data_dir=builtin_data.data_dir,
+                          robot={"home_hand_height": 0.2, "home_above_objects": True},
+                          bin={"num_objects": 3, "layouts": 2, "bank_size": 4})
+    starts = record_grasp_starts(cfg, RandomStreams(0), "top", rounds=2)
+    assert bool(starts.lifted.any())  # the top grasp picks some targets out of the bin
+    assert torch.equal(starts.valid.any(1), starts.lifted.any(1))
+    env = make_env(cfg, seed=RandomStreams(1))
+    env.set_grasp_starts(starts, 1.0, torch.Generator().manual_seed(0))
+    td = env.reset()
+    flagged = td["grasp_start"][:, 0].clone()
+    assert torch.equal(flagged, starts.valid.any(1))
+    qpos = env.backend.qpos
+    for i in flagged.nonzero()[:, 0].tolist():
+        gap = (qpos[i] - starts.qpos[i]).abs().amax(-1)  # (S,) every slot's pose, the robot's
+        s = int(gap.argmin())
+        assert bool(starts.valid[i, s]) and gap[s] < 1e-6
+        assert env.state["target_slot"][i] == starts.task["target_slot"][i, s]
+        assert td["object_id"][i, 0] == env.assignment[i, starts.task["target_slot"][i, s]]
+    env.close()
+
+
 def test_grasp_starts_refuse_what_they_cannot_record(builtin_data: Config) -> None:
-    """One-line errors: the bin task, and objects without a best family."""
-    with pytest.raises(TrainerError, match="lift task"):
-        record_grasp_starts(_cfg(builtin_data, task="bin"), RandomStreams(0), "top")
+    """A one-line error for objects without a best family."""
     with pytest.raises(TrainerError, match="grasp_starts: no scripted grasp lifts builtin_cylinder"
                        ", builtin_box yet .*set grasp_starts = 0"):
         record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "best")

@@ -512,7 +512,7 @@ class RunConfig(_Checked):
     torch_threads: int = bounded(1, ge=1)
     """Threads of torch's own ops (the simulation has its own pool)."""
     grasp_starts: float = bounded(0.0, ge=0, le=1)
-    """Not the paper's (an option, 2026-11-27): the fraction of training episodes (lift task)
+    """Not the paper's (an option, 2026-11-27): the fraction of training episodes (lift or bin)
     that start from a state along a scripted grasp that lifted the env's object, recorded when
     the run starts (``trainer.training.grasp_starts``): the hand on its way to, or closed
     around, the object. Those episodes count in no success rate and not in the curriculum;

@@ -12,9 +12,10 @@ did are left out of every training success rate and of the lift curriculum.
 
 Recording: the run's own task (its config, its ``num_envs``; only ``max_steps`` long enough for
 the script), reset ``rounds`` times from the run's ``grasp_starts`` random stream, runs each
-object's best family; every ``stride`` actions up to the end of the script's closing the state
-of each env is kept, and of those only the envs whose trial then lifted its object. An env of
-the training task restarts from one of its own index's states (the same object and layout).
+object's best family (on its target, in the bin); every ``stride`` actions up to the end of the
+script's closing the state of each env is kept, and of those only the envs whose trial then
+lifted its object. An env of the training task restarts from one of its own index's states
+(the same object and layout).
 """
 
 from __future__ import annotations
@@ -85,20 +86,18 @@ def record_grasp_starts(
     stride: int = 10, phase: str = "approach",
 ) -> GraspStarts:
     """Run each object's best scripted grasp (``family_name`` "best": ``BEST``; or one
-    ``FAMILY[:VARIANT]`` for every object) ``rounds`` times on every env of a lift task built
+    ``FAMILY[:VARIANT]`` for every object) ``rounds`` times on every env of the task built
     from ``cfg`` (``max_steps`` raised for the script; its resets drawn from the
-    ``grasp_starts`` stream of ``streams``) and keep the states along it (every ``stride``
-    actions: from the first ``stride`` actions to the end of the closing with ``phase``
-    "approach", the closing window with "closing", from the start of the closing to the end of
-    the script, its lift included, with "lift") of the trials that lifted. The
-    script runs in this task's physics (with absolute hand actions, whatever
+    ``grasp_starts`` stream of ``streams``; in the bin the script grasps each episode's target
+    in its clutter, and a start restores every object of the bin and the target slot) and keep
+    the states along it (every ``stride`` actions: from the first ``stride`` actions to the end
+    of the closing with ``phase`` "approach", the closing window with "closing", from the start
+    of the closing to the end of the script, its lift included, with "lift") of the trials that
+    lifted. The script runs in this task's physics (with absolute hand actions, whatever
     ``robot.hand_action``): a family's own ``load_env_config`` overrides (``Variant.env``) are
     not applied."""
     from trainer.tasks import make_env
 
-    if cfg.task != "lift":
-        raise TrainerError(f"[run] grasp_starts is for the lift task, not {cfg.task!r}: "
-                           "set grasp_starts = 0")
     names = resolve_names(cfg.objects, cfg.data_dir)
     if family_name == "best":
         missing = [n for n in names if n not in BEST]
