@@ -74,14 +74,20 @@ def split_by_start_up(
     return rows
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def eval_arguments(description: str) -> argparse.Namespace:
+    """The command line of a script that replays ``trainer eval``'s episodes (``eval_env``):
+    run_dir, episodes_per_object, iteration, objects, seed."""
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument("run_dir", type=Path)
     parser.add_argument("--episodes-per-object", type=int, default=50)
     parser.add_argument("--iteration", type=int, default=None)
     parser.add_argument("--objects", default=None)
     parser.add_argument("--seed", type=int, default=12345, help="trainer eval's default")
-    args = parser.parse_args()
+    return parser.parse_args()
+
+
+def main() -> None:
+    args = eval_arguments(__doc__.splitlines()[0])
     rows = split_by_start_up(args.run_dir, args.episodes_per_object, args.iteration,
                              args.objects, args.seed)
     print("| object | upright: held / episodes | upside down: held / episodes | all |")

@@ -14,7 +14,6 @@ its largest coordinate as a fraction of the box's half extent along that axis (0
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -75,13 +74,9 @@ def grasp_offsets(
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("run_dir", type=Path)
-    parser.add_argument("--episodes-per-object", type=int, default=50)
-    parser.add_argument("--iteration", type=int, default=None)
-    parser.add_argument("--objects", default=None)
-    parser.add_argument("--seed", type=int, default=12345, help="trainer eval's default")
-    args = parser.parse_args()
+    from eval_upright import eval_arguments
+
+    args = eval_arguments(__doc__.splitlines()[0])
     rows = grasp_offsets(args.run_dir, args.episodes_per_object, args.iteration, args.objects,
                          args.seed)
     print("| object | held / episodes | pads from the box centre (cm, median) "

@@ -277,8 +277,7 @@ def _tiny_dice_mug_run(builtin_data: Config, tmp_path: Path) -> RunDir:
              "hidden": (16, 16)},
         run={"total_steps": 32, "seed": 0},
     )
-    run = train(cfg, tmp_path / "run", progress=False)
-    return run
+    return train(cfg, tmp_path / "run", progress=False)
 
 
 def test_eval_upright_splits_exactly_the_episodes_of_trainer_eval(
