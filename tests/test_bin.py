@@ -116,10 +116,10 @@ def test_success_only_for_the_target(env: GraspTask) -> None:
     _teleport_up(env, env.state["target_slot"], 0.35)  # the target, but nothing holds it
     td = env.step(TensorDict({"action": torch.zeros(E, 11)}, batch_size=[E]))["next"]
     assert (td["lift_height"] > env.cfg.reward.h_bar).all() and not td["success"].any()
-    # Without the hold condition (hold_tips = 0, eager task code reads the config each step)
-    # the same rise of the target is a success in every env.
+    # Without the hold condition (hold_tips = 0, eager step outputs read their config each
+    # step) the same rise of the target is a success in every env.
     held_cfg = env.cfg
-    env.cfg = dataclasses.replace(
+    env.cfg = env.outputs.cfg = dataclasses.replace(
         held_cfg, reward=dataclasses.replace(held_cfg.reward, hold_tips=0)
     )
     try:
@@ -127,7 +127,7 @@ def test_success_only_for_the_target(env: GraspTask) -> None:
         _teleport_up(env, env.state["target_slot"], 0.35)
         td = env.step(TensorDict({"action": torch.zeros(E, 11)}, batch_size=[E]))["next"]
     finally:
-        env.cfg = held_cfg
+        env.cfg = env.outputs.cfg = held_cfg
     assert td["success"].all() and td["terminated"].all()
 
 

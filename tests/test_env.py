@@ -289,9 +289,8 @@ def test_success_is_a_lift_while_held() -> None:
     """Success needs the target lifted by h_bar *and* ``hold_tips`` fingertip pads within
     ``hold_distance`` of its surface: a policy that bats the ball up through h_bar (the hand
     ~20 cm away, seen in training) does not succeed. hold_tips = 0: any rise counts."""
-    from types import SimpleNamespace
-
     from trainer.config import EnvConfig, RewardConfig
+    from trainer.tasks.outputs import termination
 
     far, near = 0.2, 0.005
     lift = torch.tensor([0.25, 0.25, 0.25, 0.10, 0.25])
@@ -308,9 +307,9 @@ def test_success_is_a_lift_while_held() -> None:
     for hold_tips, expected in ((2, [False, True, False, False, True]),
                                 (1, [False, True, True, False, True]),
                                 (0, [True, True, True, False, True])):
-        task = SimpleNamespace(cfg=EnvConfig(reward=RewardConfig(hold_tips=hold_tips)))
-        success, terminated, _ = GraspTask._get_termination(
-            task, lift, torch.tensor(0.2), tip_distance, obj_pos, step_count
+        cfg = EnvConfig(reward=RewardConfig(hold_tips=hold_tips))
+        success, terminated, _ = termination(
+            cfg, lift, torch.tensor(0.2), tip_distance, obj_pos, step_count
         )
         assert success.tolist() == expected, hold_tips
         assert torch.equal(terminated, success)  # on the table: only a success ends it
@@ -320,17 +319,16 @@ def test_hold_from_relaxes_only_the_low_training_targets() -> None:
     """``reward.hold_from``: a curriculum target below it succeeds on any rise (a toss too); at
     or above it, and so always at the task's h_bar, the target must be held. A hold_from above
     h_bar would let evaluation count tosses: refused in one line."""
-    from types import SimpleNamespace
-
     from trainer.config import EnvConfig, RewardConfig
+    from trainer.tasks.outputs import termination
 
     far, near = 0.2, 0.005
     lift = torch.tensor([0.06, 0.06, 0.25, 0.25])
     h_bar = torch.tensor([0.05, 0.05, 0.2, 0.2])  # per env: two at a low target, two at h_bar
     tip_distance = torch.tensor([[far] * 5, [near] * 5, [far] * 5, [near] * 5])
-    task = SimpleNamespace(cfg=EnvConfig(reward=RewardConfig(hold_from=0.1)))
-    success, _, _ = GraspTask._get_termination(
-        task, lift, h_bar, tip_distance, torch.zeros(4, 3), torch.zeros(4, dtype=torch.long)
+    cfg = EnvConfig(reward=RewardConfig(hold_from=0.1))
+    success, _, _ = termination(
+        cfg, lift, h_bar, tip_distance, torch.zeros(4, 3), torch.zeros(4, dtype=torch.long)
     )
     assert success.tolist() == [True, True, False, True]
     with pytest.raises(TrainerError, match=r"hold_from.*at most h_bar"):
@@ -394,8 +392,7 @@ def test_a_hand_that_starts_in_the_object_is_reported(builtin_data: Config) -> N
 
     from trainer.assets.collision import BIT_HAND
     from trainer.errors import TrainerWarning
-    from trainer.init_states import hand_touches
-    from trainer.tasks.base import turned
+    from trainer.init_states import hand_touches, turned
 
     def build(home: float, above: bool = False) -> tuple[list[str], GraspTask]:
         cfg = load_env_config(num_envs=16, objects="builtin_cylinder", representation="com",

@@ -1,6 +1,6 @@
 """Banks of settled initial object states: a scene's objects (one per slot) dropped from random
 poses, simulated together until they rest, and cached on disk
-(``data/interim/trainer/init_states``).
+(``data/interim/trainer/init_states``); and the robot's homes above them (``robot_homes``).
 
 Lift drops its one object onto the table; bin picking drops all of its objects into the bin one
 above the other, so the clutter settles together. A state is kept only if every object came to
@@ -17,7 +17,9 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import warnings
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
@@ -26,15 +28,23 @@ import torch
 from mujoco import rollout
 
 from geomgrasp.files import atomic_path
-from geomgrasp.rotations import quat_to_matrix, random_quats
+from geomgrasp.rotations import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix, random_quats
+from trainer.assets.collision import BIT_HAND
 from trainer.assets.scene import Scene, build_scene, slot_geoms, slot_name, slot_qpos_addresses
-from trainer.config import EnvConfig, config_dict
-from trainer.errors import TrainerError
+from trainer.config import EnvConfig, RobotConfig, config_dict
+from trainer.errors import TrainerError, TrainerWarning
+from trainer.robots import Robot
 
 BANK_VERSION = 4
 MAX_REST_SPEED = 0.02
 """An object moving faster than this (m/s) after settling is not at rest: drop it again."""
 MAX_ATTEMPTS = 20
+HOME_RAISE = 0.01
+"""``[robot] home_above_objects``: the home height rises in steps of this (m) ..."""
+HOME_RAISE_STEPS = 30
+"""... at most this many (0.3 m); a state still touched there starts touched, with a warning."""
+HOME_CHECK_YAWS = 16
+"""The home-contact check turns each settled state to this many yaws (every 22.5 degrees)."""
 
 
 def bank_key(cfg: EnvConfig, scene: Scene, mjcf_keys: Sequence[str]) -> str:
@@ -204,6 +214,21 @@ def load_or_build_bank(
     return bank
 
 
+def layout_banks(
+    cfg: EnvConfig, scene: Scene, layouts: np.ndarray, names: Sequence[str],
+    xmls: Sequence[Sequence[Path]], mjcf_keys: Sequence[str], size: int, device: torch.device,
+) -> torch.Tensor:
+    """(L, size, K, 7) float32 on ``device``: the cached bank (``load_or_build_bank``) of each
+    layout l, whose slot k holds object ``layouts[l, k]`` (``names``, ``mjcf_keys`` by object
+    id; ``xmls[l]`` the layout's slot models)."""
+    banks = np.stack([
+        load_or_build_bank(cfg, scene, [names[k] for k in row], xmls[i],
+                           [mjcf_keys[k] for k in row], size)
+        for i, row in enumerate(layouts)
+    ])
+    return torch.as_tensor(banks, dtype=torch.float32, device=device)
+
+
 def hand_touches(model: mujoco.MjModel, home_qpos: np.ndarray, states: np.ndarray,
                  slot_qpos: np.ndarray, hand_bit: int) -> np.ndarray:
     """(B, K) bool: in which of the settled ``states`` (B, K, 7) (slot poses: position,
@@ -233,3 +258,100 @@ def hand_touches(model: mujoco.MjModel, home_qpos: np.ndarray, states: np.ndarra
         for slot in (geom_slot[g2][hand[g1]], geom_slot[g1][hand[g2]]):
             out[b, slot[slot >= 0]] = True
     return out
+
+
+def turned(pose: torch.Tensor, yaw: torch.Tensor) -> torch.Tensor:
+    """Slot poses ``pose`` (n, K, 7) (position, quaternion) turned by ``yaw`` (n,) rad about the
+    vertical axis through the origin."""
+    spin = axis_angle_to_matrix(torch.stack([torch.zeros_like(yaw)] * 2 + [yaw], -1))
+    pos = (spin[:, None] @ pose[..., :3, None])[..., 0]
+    quat = matrix_to_quat(spin[:, None] @ quat_to_matrix(pose[..., 3:]))
+    return torch.cat([pos, quat], dim=-1)
+
+
+@dataclass(frozen=True)
+class Homes:
+    """The robot's reset states at H home heights (the first ``home_hand_height``, each next
+    ``HOME_RAISE`` higher) and which one each settled state starts from."""
+
+    qpos: torch.Tensor
+    """(H, nq) the robot's joint positions (the slots' entries are overwritten at a reset)."""
+    ctrl: torch.Tensor
+    """(H, nu) its actuator targets."""
+    keypoint: torch.Tensor
+    """(H, 3) m, the palm keypoint."""
+    rot: torch.Tensor
+    """(3, 3) the palm's orientation, the same in every home."""
+    index: torch.Tensor
+    """(L, B) long: the home of settled state b of layout l."""
+    touched: np.ndarray
+    """(L, B, K) bool: the hand at that home still touches slot k's object (at some yaw)."""
+
+
+def robot_homes(
+    robot: Robot, model: mujoco.MjModel, models: Sequence[mujoco.MjModel], banks: torch.Tensor,
+    slot_qpos: torch.Tensor, cfg: RobotConfig,
+) -> Homes:
+    """The homes of ``robot`` (posed on ``model``) over the settled ``banks`` (L, B, K, 7) of the
+    layouts whose models are ``models`` (slot k's qpos addresses ``slot_qpos`` (K, 7)). Without
+    ``home_above_objects`` one home at ``home_hand_height`` (H = 1); with it, each state starts
+    from the lowest at which the hand touches none of its objects at any of
+    ``HOME_CHECK_YAWS`` turns (a reset turns it by a random one), at most
+    ``HOME_RAISE_STEPS`` raises up."""
+    steps = HOME_RAISE_STEPS if cfg.home_above_objects else 0
+    L, B, K = banks.shape[:3]
+    index = np.zeros((L, B), dtype=np.int64)
+    touched = np.zeros((L, B, K), dtype=bool)
+    pending = np.ones((L, B), dtype=bool)  # states the hand still touches at this height
+    homes = []
+    yaws = torch.arange(HOME_CHECK_YAWS, device=banks.device) * (2 * torch.pi / HOME_CHECK_YAWS)
+    for step in range(steps + 1):
+        homes.append(robot.home(model, cfg.home_hand_height + HOME_RAISE * step))
+        for layout in np.flatnonzero(pending.any(1)):
+            states = np.flatnonzero(pending[layout])
+            poses = banks[layout, torch.as_tensor(states, device=banks.device)]  # (S, K, 7)
+            poses = turned(poses.repeat_interleave(HOME_CHECK_YAWS, 0), yaws.repeat(len(states)))
+            hit = hand_touches(
+                models[layout], homes[-1].qpos.cpu().numpy(), poses.cpu().numpy(),
+                slot_qpos.cpu().numpy(), BIT_HAND,
+            ).reshape(len(states), HOME_CHECK_YAWS, -1).any(1)
+            index[layout, states] = step
+            touched[layout, states] = hit
+            pending[layout, states] = hit.any(1)
+        if not pending.any():
+            break
+    return Homes(
+        qpos=torch.stack([h.qpos for h in homes]),
+        ctrl=torch.stack([h.ctrl for h in homes]),
+        keypoint=torch.stack([h.keypoint for h in homes]),
+        rot=homes[0].rot,
+        index=torch.as_tensor(index, device=banks.device),
+        touched=touched,
+    )
+
+
+def warn_home_contact(homes: Homes, layouts: np.ndarray, names: Sequence[str],
+                      cfg: RobotConfig) -> None:
+    """One warning if the hand at its home touches some object in its settled states
+    (``homes.touched``; ``layouts`` (L, K) the object id in each slot): those episodes start
+    with the hand already on (or in) the object, whose first steps then push it around (a lift
+    may even count) without any action."""
+    touched = homes.touched
+    ids = layouts[:, None, :].repeat(touched.shape[1], 1)
+    clash = [(int(touched[ids == k].sum()), int((ids == k).sum()), name)
+             for k, name in enumerate(names) if touched[ids == k].any()]
+    if not clash:
+        return
+    clash.sort(key=lambda c: -c[0] / c[1])
+    listed = ", ".join(f"{n} ({a} of {b})" for a, b, n in clash[:10])
+    more = f" and {len(clash) - 10} more" if len(clash) > 10 else ""
+    height = float(homes.keypoint[-1, 2])
+    fix = ("raise [robot] home_hand_height" if cfg.home_above_objects else
+           "set [robot] home_above_objects = true, raise home_hand_height")
+    warnings.warn(
+        f"the hand at its home pose touches settled states of {listed}{more}: those "
+        f"episodes start with the hand on the object; {fix} (now {height:.2f} m) or "
+        "leave them out",
+        TrainerWarning,
+        stacklevel=4,
+    )

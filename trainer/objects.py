@@ -19,6 +19,7 @@ import torch
 from geomprep import contract
 from geomprep.errors import GeomprepError
 from geomprep.sdf_lookup import SDFLookup
+from trainer.config import EnvConfig
 from trainer.errors import TrainerError
 
 
@@ -56,6 +57,18 @@ def resolve_names(spec: str, data_dir: Path) -> list[str]:
             f"object set {spec!r} is empty in {data_dir}: import objects with `geomprep fetch`"
         )
     return names
+
+
+def task_objects(cfg: EnvConfig, names: list[str], device: torch.device) -> ObjectSet:
+    """The objects ``names`` as a task of ``cfg`` needs them: with their SDF grids (in
+    ``cfg.sdf_dtype``) where the representation, the reward's fingertip distances or the hold
+    test (``reward.hold_tips``, telling a held lift from a toss) reads them."""
+    need_sdf = (
+        cfg.representation == "sdf" or cfg.reward.kind.startswith("sdf")
+        or cfg.reward.hold_tips > 0
+    )
+    sdf_dtype = torch.float16 if cfg.sdf_dtype == "float16" else torch.float32
+    return load_objects(names, cfg.data_dir, need_sdf, device, sdf_dtype)
 
 
 def load_objects(

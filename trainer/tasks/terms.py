@@ -15,6 +15,11 @@ of one table (``[reward]``: weights c1, c2, c3; ``kind`` picks the contact term'
 |         |        | none: 0                                             |
 |         |        | sdf-thumb: c3 / (thumb's + nearest finger's distance >= 0 + eps_sdf) |
 
+A term is paid per step (its value, the paper's) or, marked ``difference`` (``[reward]
+contact_shaping = "difference"`` for the contact term; not the paper's), as its change since the
+previous step: a potential-based shaping with discount 1 (``paid_terms``; the task keeps each
+such term's previous value in its state as ``<name>_prev``).
+
 A term's function receives its weight rather than returning a value to be multiplied by it:
 the paper's inverse-distance terms divide the weight (``c1 / d``), and ``c1 * (1 / d)`` would
 round differently and change the runs.
@@ -111,6 +116,8 @@ class RewardTerm(NamedTuple):
 
     weight: float
     function: TermFunction
+    difference: bool = False
+    """Paid as its change since the previous step instead of its value (``paid_terms``)."""
 
 
 def reward_terms(r: RewardConfig) -> dict[str, RewardTerm]:
@@ -119,8 +126,31 @@ def reward_terms(r: RewardConfig) -> dict[str, RewardTerm]:
     return {
         "lift": RewardTerm(r.c1, lift_closeness),
         "success": RewardTerm(r.c2, success_bonus),
-        "contact": RewardTerm(r.c3, CONTACT_VARIANTS[r.kind]),
+        "contact": RewardTerm(r.c3, CONTACT_VARIANTS[r.kind],
+                              difference=r.contact_shaping == "difference"),
     }
+
+
+def previous_key(name: str) -> str:
+    """The task-state key (E,) holding difference term ``name``'s value at the previous step
+    (NaN right after a reset)."""
+    return f"{name}_prev"
+
+
+def paid_terms(
+    terms: Mapping[str, RewardTerm], values: Mapping[str, torch.Tensor],
+    previous: Mapping[str, torch.Tensor],
+) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
+    """What each term pays this step, from its value now (``values``, ``evaluate_terms``): its
+    value, or for a ``difference`` term its change since ``previous[previous_key(name)]`` (E,)
+    (NaN: the episode just started; it pays 0). Returns (paid, the new previous values)."""
+    paid, now = dict(values), {}
+    for name, term in terms.items():
+        if term.difference:
+            value, prev = values[name], previous[previous_key(name)]
+            paid[name] = value - torch.where(prev.isnan(), value, prev)
+            now[previous_key(name)] = value
+    return paid, now
 
 
 def evaluate_terms(

@@ -20,13 +20,9 @@ lifted its object. An env of the training task restarts from one of its own inde
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from pathlib import Path
-
 import torch
 from tensordict import TensorDict
 
-from geomgrasp.files import atomic_path
 from trainer.config import EnvConfig
 from trainer.errors import TrainerError
 from trainer.grasps.families import BEST, best_variants, variants
@@ -34,51 +30,8 @@ from trainer.grasps.keyframes import KeyframeGrasp
 from trainer.grasps.runner import episode_config, run_scripted_grasp
 from trainer.objects import resolve_names
 from trainer.randomness import RandomStreams
-
-TASK_STATE_KEYS = ("start_height", "start_low", "target_slot", "target_pos", "target_rot",
-                   "ctrl", "palm_pos")
-"""The task's per-env state a grasp start carries (those the task has); ``step_count`` restarts
-at 0 and ``contact_prev`` at its reset marker."""
-
-
-@dataclass(frozen=True)
-class GraspStarts:
-    """Scripted-grasp states of E envs, S captures each (S = rounds x captures per round)."""
-
-    qpos: torch.Tensor
-    """(E, S, nq) the simulation's positions."""
-    qvel: torch.Tensor
-    """(E, S, nv) its velocities."""
-    task: TensorDict
-    """(E, S) the task's state (``TASK_STATE_KEYS`` it has)."""
-    valid: torch.Tensor
-    """(E, S) bool: the capture belongs to a trial that lifted its object."""
-    lifted: torch.Tensor
-    """(E, rounds) bool: each round's trial lifted the env's object (what the scripts achieved
-    in this task's physics)."""
-    lift: torch.Tensor | None = None
-    """(E, S) m: the target's lift at each capture, as the task's reward reads it (a start is
-    used only below the object's current lift target); None in files recorded before it was
-    kept (every valid capture is used)."""
-
-    def save(self, path: Path) -> None:
-        """Write to ``path`` whole or not at all (``atomic_path``)."""
-        with atomic_path(path) as tmp:
-            torch.save({"qpos": self.qpos, "qvel": self.qvel, "task": self.task.to_dict(),
-                        "valid": self.valid, "lifted": self.lifted,
-                        **({} if self.lift is None else {"lift": self.lift})}, tmp)
-
-    @staticmethod
-    def load(path: Path) -> GraspStarts:
-        """What ``save`` wrote (on the CPU)."""
-        d = torch.load(path, map_location="cpu", weights_only=True)
-        task = TensorDict(d["task"], batch_size=d["valid"].shape)
-        return GraspStarts(d["qpos"], d["qvel"], task, d["valid"], d["lifted"], d.get("lift"))
-
-    def to(self, device: torch.device) -> GraspStarts:
-        return GraspStarts(self.qpos.to(device), self.qvel.to(device), self.task.to(device),
-                           self.valid.to(device), self.lifted.to(device),
-                           None if self.lift is None else self.lift.to(device))
+from trainer.tasks import make_env
+from trainer.tasks.starts import TASK_STATE_KEYS, GraspStarts
 
 
 def record_grasp_starts(
@@ -96,8 +49,6 @@ def record_grasp_starts(
     lifted. The script runs in this task's physics (with absolute hand actions, whatever
     ``robot.hand_action``): a family's own ``load_env_config`` overrides (``Variant.env``) are
     not applied."""
-    from trainer.tasks import make_env
-
     names = resolve_names(cfg.objects, cfg.data_dir)
     if family_name == "best":
         missing = [n for n in names if n not in BEST]

@@ -1,0 +1,249 @@
+"""Where episodes start: the start strategies a ``GraspTask`` applies to the envs it resets.
+
+A reset restarts some envs (``ids``); the task's strategies then run in order, each over those
+envs, every one behind the same interface (``StartStrategy.apply``):
+
+- ``SettledStart`` (always, first; the paper's): a settled state of the env's layout from the
+  bank (``trainer.init_states``), turned about the vertical axis, the robot at the home that
+  state starts from, and a new target.
+- ``GraspStart`` (training only, ``[run] grasp_starts``; not the paper's): a fraction of the
+  envs instead starts from a recorded state along a scripted grasp of its object
+  (``GraspStarts``, recorded by ``trainer.training.grasp_starts``). Evidence:
+  results/cpu-grasp-starts-2026-11-27/, results/cpu-together-starts50-2026-11-27/.
+- ``StaggeredStart`` (training only, ``[ppo] stagger_episodes``): once, at the first full reset,
+  each episode starts at a random step, so that episodes do not all end in the same step.
+
+A strategy with random draws keeps its generator and checkpoints it (``state_dict``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import torch
+from tensordict import TensorDict
+
+from geomgrasp.files import atomic_path
+from trainer.config import EnvConfig
+from trainer.init_states import Homes, turned
+from trainer.robots import Robot
+from trainer.sim.backend import SimBackend
+from trainer.tasks.terms import RewardTerm, previous_key
+
+TASK_STATE_KEYS = ("start_height", "start_low", "target_slot", "target_pos", "target_rot",
+                   "ctrl", "palm_pos")
+"""The task's per-env state a grasp start carries (those the task has); ``step_count`` restarts
+at 0 and ``contact_prev`` at its reset marker."""
+
+
+def initial_state(cfg: EnvConfig, terms: Mapping[str, RewardTerm], homes: Homes,
+                  device: torch.device) -> TensorDict:
+    """The task's per-env state (E = ``cfg.num_envs``) before its first reset, every env at the
+    first home: ``step_count``, ``start_height``, ``target_slot``, the palm's and hand's
+    commands (``target_pos``, ``target_rot``, ``ctrl``) and ``palm_pos``; with
+    ``reward.lift_clearance`` ``start_low``; per ``difference`` reward term its previous value
+    (``trainer.tasks.terms.previous_key``). Keys exist only where used, so that runs without
+    an option keep their saved task state."""
+    E = cfg.num_envs
+    state = TensorDict(
+        {
+            "step_count": torch.zeros(E, dtype=torch.long),
+            "start_height": torch.zeros(E),
+            "target_slot": torch.zeros(E, dtype=torch.long),
+            "target_pos": homes.keypoint[0].repeat(E, 1),
+            "target_rot": homes.rot.repeat(E, 1, 1),
+            "ctrl": homes.ctrl[0].repeat(E, 1),
+            "palm_pos": homes.keypoint[0].repeat(E, 1),
+        },
+        batch_size=[E],
+        device=device,
+    )
+    for name, term in terms.items():
+        if term.difference:  # NaN right after a reset: the next observation sets it
+            state[previous_key(name)] = torch.full((E,), float("nan"), device=device)
+    if cfg.reward.lift_clearance > 0:  # the target's lowest surface point at the start, m
+        state["start_low"] = torch.zeros(E, device=device)
+    return state
+
+
+class ResettingTask(Protocol):
+    """What a start strategy reads and writes of the task it starts (a ``GraspTask``)."""
+
+    cfg: EnvConfig
+    device: torch.device
+    state: TensorDict
+    backend: SimBackend
+    robot: Robot
+    banks: torch.Tensor
+    env_layout: torch.Tensor
+    assignment: torch.Tensor
+    slot_qpos: torch.Tensor
+    home_qpos: torch.Tensor
+    home_ctrl: torch.Tensor
+    home_keypoint: torch.Tensor
+    home_rot: torch.Tensor
+    home_index: torch.Tensor
+    h_bar: torch.Tensor
+    _rng: torch.Generator
+    """The reset generator: settled states, yaws, targets and staggered steps draw from it."""
+
+    def _reset_yaw(self, n: int) -> torch.Tensor: ...
+    def _choose_targets(self, n: int) -> torch.Tensor: ...
+    def _episode_start(self, poses: torch.Tensor, target_slot: torch.Tensor,
+                       object_id: torch.Tensor) -> dict[str, torch.Tensor]: ...
+    def target_objects(self, target_slot: torch.Tensor | None = None) -> torch.Tensor: ...
+
+
+class StartStrategy:
+    """One way of starting the episodes of the envs a reset restarts."""
+
+    def apply(self, task: ResettingTask, ids: torch.Tensor, full: bool) -> None:
+        """Start the episodes of envs ``ids`` (n,) of ``task``; ``full``: every env was reset
+        (a collector's first reset)."""
+        raise NotImplementedError
+
+    def state_dict(self) -> dict[str, Any]:
+        """What a checkpoint keeps of the strategy (its generators)."""
+        return {}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Continue from ``state_dict``'s ``state``."""
+
+
+class SettledStart(StartStrategy):
+    """The robot home and the objects in a settled state of the env's layout (drawn from the
+    task's reset generator), turned about the vertical axis; the episode's target chosen by
+    the task."""
+
+    def apply(self, task: ResettingTask, ids: torch.Tensor, full: bool) -> None:
+        n = len(ids)
+        if n == 0:
+            return
+        pick = torch.randint(task.banks.shape[1], (n,), generator=task._rng, device=task.device)
+        pose = task.banks[task.env_layout[ids], pick]  # (n, K, 7)
+        pose = turned(pose, task._reset_yaw(n))
+        home = task.home_index[task.env_layout[ids], pick]
+        qpos = task.home_qpos[home]
+        qpos[:, task.slot_qpos] = pose
+        target_slot = task._choose_targets(n)
+        object_id = task.assignment[ids].gather(1, target_slot[:, None])[:, 0]
+        fresh = TensorDict(
+            {
+                "step_count": torch.zeros(n, dtype=torch.long, device=task.device),
+                **task._episode_start(pose, target_slot, object_id),
+                "target_slot": target_slot,
+                "target_pos": task.home_keypoint[home],
+                "target_rot": task.home_rot.expand(n, 3, 3),
+                "ctrl": task.home_ctrl[home],
+                "palm_pos": task.home_keypoint[home],
+            },
+            batch_size=[n],
+            device=task.device,
+        )
+        if "grasp_start" in task.state.keys():  # noqa: SIM118 (a TensorDict)
+            fresh["grasp_start"] = torch.zeros(n, dtype=torch.bool, device=task.device)
+        task.state[ids] = fresh
+        mocap = task.robot.mocap(fresh["target_pos"], fresh["target_rot"])
+        task.backend.set_state(
+            ids, qpos, torch.zeros(n, task.backend.nv, device=task.device), fresh["ctrl"], *mocap
+        )
+
+
+@dataclass(frozen=True)
+class GraspStarts:
+    """Scripted-grasp states of E envs, S captures each (S = rounds x captures per round)."""
+
+    qpos: torch.Tensor
+    """(E, S, nq) the simulation's positions."""
+    qvel: torch.Tensor
+    """(E, S, nv) its velocities."""
+    task: TensorDict
+    """(E, S) the task's state (``TASK_STATE_KEYS`` it has)."""
+    valid: torch.Tensor
+    """(E, S) bool: the capture belongs to a trial that lifted its object."""
+    lifted: torch.Tensor
+    """(E, rounds) bool: each round's trial lifted the env's object (what the scripts achieved
+    in this task's physics)."""
+    lift: torch.Tensor | None = None
+    """(E, S) m: the target's lift at each capture, as the task's reward reads it (a start is
+    used only below the object's current lift target); None in files recorded before it was
+    kept (every valid capture is used)."""
+
+    def save(self, path: Path) -> None:
+        """Write to ``path`` whole or not at all (``atomic_path``)."""
+        with atomic_path(path) as tmp:
+            torch.save({"qpos": self.qpos, "qvel": self.qvel, "task": self.task.to_dict(),
+                        "valid": self.valid, "lifted": self.lifted,
+                        **({} if self.lift is None else {"lift": self.lift})}, tmp)
+
+    @staticmethod
+    def load(path: Path) -> GraspStarts:
+        """What ``save`` wrote (on the CPU)."""
+        d = torch.load(path, map_location="cpu", weights_only=True)
+        task = TensorDict(d["task"], batch_size=d["valid"].shape)
+        return GraspStarts(d["qpos"], d["qvel"], task, d["valid"], d["lifted"], d.get("lift"))
+
+    def to(self, device: torch.device) -> GraspStarts:
+        return GraspStarts(self.qpos.to(device), self.qvel.to(device), self.task.to(device),
+                           self.valid.to(device), self.lifted.to(device),
+                           None if self.lift is None else self.lift.to(device))
+
+
+class GraspStart(StartStrategy):
+    """Each reset env starts, with probability ``fraction`` (drawn from ``rng``), from one of
+    its own valid recorded states in ``starts`` (the same object and layout), drawn uniformly
+    among those whose target had not yet risen to its object's current lift target
+    (``task.h_bar``): a state past it would start an episode that has already succeeded. The
+    task's ``grasp_start`` state flags those episodes."""
+
+    def __init__(self, starts: GraspStarts, fraction: float, rng: torch.Generator) -> None:
+        self.starts, self.fraction, self.rng = starts, fraction, rng
+
+    def apply(self, task: ResettingTask, ids: torch.Tensor, full: bool) -> None:
+        if len(ids) == 0:
+            return
+        starts = self.starts
+        valid = starts.valid[ids]  # (n, S)
+        if starts.lift is not None:
+            below = task.h_bar[task.target_objects()[ids]]  # (n,) m
+            valid = valid & (starts.lift[ids] < below[:, None])
+        draw = torch.rand(len(ids), generator=self.rng, device=task.device)
+        chosen = (draw < self.fraction) & valid.any(1)
+        pick = torch.multinomial(valid.float() + 1e-12, 1, generator=self.rng)[:, 0]
+        ids, pick = ids[chosen], pick[chosen]
+        if len(ids) == 0:
+            return
+        state = starts.task[ids, pick]
+        for key in state.keys():  # noqa: SIM118 (a TensorDict)
+            task.state[key][ids] = state[key]
+        task.state["grasp_start"][ids] = True
+        qpos, qvel = starts.qpos[ids, pick], starts.qvel[ids, pick]
+        mocap = task.robot.mocap(state["target_pos"], state["target_rot"])
+        task.backend.set_state(ids, qpos, qvel, state["ctrl"], *mocap)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"grasp_rng": self.rng.get_state()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if "grasp_rng" in state:
+            self.rng.set_state(state["grasp_rng"])
+
+
+class StaggeredStart(StartStrategy):
+    """At the next full reset only: each env's episode starts at a random step in
+    [0, ``max_steps``) (drawn from the task's reset generator), so the episodes reach
+    ``max_steps`` spread over the following rollouts instead of all in the same step."""
+
+    def __init__(self) -> None:
+        self.pending = True
+
+    def apply(self, task: ResettingTask, ids: torch.Tensor, full: bool) -> None:
+        if not (self.pending and full):
+            return
+        self.pending = False
+        task.state["step_count"] = torch.randint(
+            task.cfg.max_steps, (task.cfg.num_envs,), generator=task._rng, device=task.device
+        )
