@@ -9,8 +9,9 @@ object must not load the libraries that made it (``tests/test_contract.py`` chec
 h5py is imported by the readers only (``geomprep.config`` uses ``DataDirs``, and ``geomprep``'s
 command line starts without h5py).
 
-The one exception is ``resolve_objects`` on a data directory that lacks the sources of built-in
-objects it names: it writes them on first use, through ``geomprep.pipeline`` (imported only then).
+It only reads: writing the built-in objects' sources into the raw store is a build step of its
+own (``geomprep.importer.import_builtin``), which the callers that need the sources run
+(``geomprep.pipeline.resolve_objects``, ``trainer.objects.resolve_names``).
 
 Quantities are in the object frame (origin at the centre of mass, the frame of the MJCF free
 body and of the SDF grid), metres, kilograms; arrays are stored as float32.
@@ -267,9 +268,10 @@ def verify_processed(dirs: DataDirs, name: str) -> str | None:
 def resolve_objects(dirs: DataDirs, spec: str | Sequence[str] | None) -> list[str]:
     """Object names from a comma list that may use the sets ``all``, ``builtin`` and ``ycb``.
 
-    ``all`` (the default) is every imported object plus the built-in set. Built-in objects are
-    written into the raw store on first use (``geomprep.pipeline.ensure_builtin``). Unknown
-    names, and ``ycb`` with no YCB object imported, raise GeomprepError.
+    ``all`` (the default) is every imported object plus the built-in set. Nothing is written:
+    the built-in objects' sources are written into the raw store by a build step
+    (``geomprep.importer.import_builtin``), which the caller runs. Unknown names, and ``ycb``
+    with no YCB object imported, raise GeomprepError.
     """
     if spec is None:
         spec = "all"
@@ -305,15 +307,5 @@ def resolve_objects(dirs: DataDirs, spec: str | Sequence[str] | None) -> list[st
             raise GeomprepError(
                 f"unknown object '{item}'{hint}: run 'geomprep list' to see the available names"
             )
-    names = list(dict.fromkeys(names))
-    if any(n in builtin.NAMES and not builtin_source_present(dirs, n) for n in names):
-        # Writing a mesh needs the mesh stack: imported only on a data directory's first use.
-        from geomprep import pipeline
+    return list(dict.fromkeys(names))
 
-        pipeline.ensure_builtin(dirs, [n for n in names if n in builtin.NAMES])
-    return names
-
-
-def builtin_source_present(dirs: DataDirs, name: str) -> bool:
-    """Whether the built-in object ``name`` has been written into the raw store."""
-    return (dirs.raw_dir / name / "source.json").is_file()

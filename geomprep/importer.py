@@ -7,16 +7,24 @@
 
 from __future__ import annotations
 
+import os
 import posixpath
 import re
 import shutil
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
+from geomprep import builtin as builtin_objects
 from geomprep import ycb
 from geomprep.errors import GeomprepError
 from geomprep.masses import check_density, mass_fields, read_masses
-from geomprep.rawstore import complete_objects, install_object, name_problem, validate_name
+from geomprep.rawstore import (
+    SOURCE_FILE,
+    complete_objects,
+    install_object,
+    name_problem,
+    validate_name,
+)
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl")
 # Mesh formats people have that import does not read: reported, not silently skipped, when no
@@ -252,7 +260,7 @@ def import_directory(
     unless ``force``. ``names`` selects objects (None or empty: all found, and then any entry
     that looks like an object but cannot be imported is an error). A built-in object's name
     is refused (it would replace that object) unless ``builtin``: ``src`` is where
-    ``pipeline.ensure_builtin`` wrote the built-in objects. Returns the sorted names imported or
+    ``import_builtin`` wrote the built-in objects. Returns the sorted names imported or
     already present.
     """
     src = Path(src)
@@ -283,3 +291,26 @@ def import_directory(
             raw_dir, name, populate, mass_kg=mass_kg, density_kg_m3=density_field, origin=origin
         )
     return selected
+
+
+def import_builtin(raw_dir: Path, names: Sequence[str]) -> list[str]:
+    """The build step that writes built-in objects into the raw store: each of ``names`` (built-in
+    names) whose source is not there yet is written from code (``geomprep.builtin``, which needs
+    the mesh stack) and imported through the ordinary import path. Returns the names written
+    (none when all are present: then nothing is imported or loaded)."""
+    raw_dir = Path(raw_dir)
+    missing = [n for n in names if not (raw_dir / n / SOURCE_FILE).is_file()]
+    if not missing:
+        return []
+    staging = raw_dir / f".builtin-{os.getpid()}"
+    staging.mkdir(parents=True, exist_ok=True)
+    try:
+        rows = ["object,mass_kg"]
+        for name in missing:
+            _, mass = builtin_objects.write_source(name, staging)
+            rows.append(f"{name},{mass}")
+        (staging / "masses.csv").write_text("\n".join(rows) + "\n")
+        import_directory(staging, raw_dir, missing, builtin=True)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return missing

@@ -64,7 +64,6 @@ from geomprep import (
 from geomprep.config import Config, params_dict
 from geomprep.contract import (  # noqa: F401 (geomprep's commands and tests use them from here)
     identity,
-    resolve_objects,
     source_identity,
     verify_processed,
 )
@@ -377,21 +376,19 @@ def run_stage(cfg: Config, name: str, stage: str, key: str) -> float:
 
 
 def ensure_builtin(cfg: Config, names: Sequence[str]) -> None:
-    """Write built-in objects into the raw store (once), through the ordinary import path."""
-    missing = [n for n in names if not (cfg.raw_dir / n / "source.json").is_file()]
-    if not missing:
-        return
-    staging = cfg.raw_dir / f".builtin-{os.getpid()}"
-    staging.mkdir(parents=True, exist_ok=True)
-    try:
-        rows = ["object,mass_kg"]
-        for name in missing:
-            _, mass = builtin.write_source(name, staging)
-            rows.append(f"{name},{mass}")
-        (staging / "masses.csv").write_text("\n".join(rows) + "\n")
-        importer.import_directory(staging, cfg.raw_dir, missing, builtin=True)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+    """Write built-in objects into the raw store (once), through the ordinary import path
+    (``importer.import_builtin``)."""
+    importer.import_builtin(cfg.raw_dir, names)
+
+
+def resolve_objects(cfg: Config, spec: str | Sequence[str] | None) -> list[str]:
+    """The objects ``spec`` names (``contract.resolve_objects``: a comma list that may use the
+    sets ``all``, ``builtin`` and ``ycb``), the built-in ones among them written into the raw
+    store first if they are not there yet (``ensure_builtin``): what geomprep's commands build
+    from."""
+    names = contract.resolve_objects(cfg, spec)
+    ensure_builtin(cfg, [n for n in names if n in builtin.NAMES])
+    return names
 
 
 # ---------------------------------------------------------------------------------------------

@@ -12,7 +12,7 @@ import h5py
 import numpy as np
 import pytest
 
-from geomprep import builtin, contract, pipeline
+from geomprep import builtin, contract, importer, pipeline, rawstore
 from geomprep.config import Config
 from geomprep.errors import GeomprepError
 
@@ -80,17 +80,55 @@ def test_verify_names_a_missing_file(tmp_path: Path) -> None:
     assert why == f"{tmp_path / 'processed' / 'thing.h5'} does not exist"
 
 
+def test_the_contract_resolves_built_in_names_without_writing(tmp_path: Path) -> None:
+    dirs = contract.DataDirs(tmp_path)
+    assert contract.resolve_objects(dirs, "builtin_box,builtin_dice") == [
+        "builtin_box", "builtin_dice"
+    ]
+    assert not dirs.raw_dir.exists()  # the contract reads; writing sources is a build step
+
+
 def test_builtin_sources_are_written_only_when_missing(
     builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    writes: list[list[str]] = []
-    monkeypatch.setattr(pipeline, "ensure_builtin", lambda dirs, names: writes.append(names))
-    assert contract.resolve_objects(builtin_data, "builtin") == list(builtin.NAMES)
+    real_write = builtin.write_source
+    writes: list[str] = []
+
+    def write_source(name: str, directory: Path) -> tuple[Path, float]:
+        writes.append(name)
+        return real_write(name, directory)
+
+    monkeypatch.setattr(builtin, "write_source", write_source)
+    assert importer.import_builtin(builtin_data.raw_dir, builtin.NAMES) == []
     assert writes == []  # all present: the mesh stack is not needed
-    assert contract.resolve_objects(contract.DataDirs(tmp_path), "builtin_box,builtin_dice") == [
+    raw = tmp_path / "raw"
+    assert importer.import_builtin(raw, ["builtin_box", "builtin_dice"]) == [
         "builtin_box", "builtin_dice"
     ]
-    assert writes == [["builtin_box", "builtin_dice"]]
+    assert writes == ["builtin_box", "builtin_dice"]
+    assert rawstore.complete_objects(raw) == ["builtin_box", "builtin_dice"]
+    assert not list(raw.glob(".builtin-*"))  # the staging folder is gone
+    assert importer.import_builtin(raw, ["builtin_box"]) == []
+
+
+@pytest.mark.parametrize("caller", ["geomprep", "trainer"])
+def test_the_callers_that_need_sources_run_the_build_step(
+    caller: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """geomprep's commands (``pipeline.resolve_objects``) and the trainer
+    (``objects.resolve_names``) write the built-in objects they name, as when the contract did."""
+    from trainer.objects import resolve_names
+
+    steps: list[tuple[Path, list[str]]] = []
+    monkeypatch.setattr(
+        importer, "import_builtin", lambda raw_dir, names: steps.append((raw_dir, list(names)))
+    )
+    if caller == "geomprep":
+        names = pipeline.resolve_objects(Config(data_dir=tmp_path), "builtin_box,builtin_dice")
+    else:
+        names = resolve_names("builtin_box,builtin_dice", tmp_path)
+    assert names == ["builtin_box", "builtin_dice"]
+    assert steps == [(tmp_path / "raw", ["builtin_box", "builtin_dice"])]
 
 
 def test_geomprep_config_is_a_data_layout() -> None:

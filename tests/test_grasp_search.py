@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 import torch
@@ -15,7 +16,7 @@ import trainer.cli
 from geomprep.config import Config
 from trainer.config import load_env_config
 from trainer.errors import TrainerError
-from trainer.grasps import FAMILIES, TopGrasp, record_grasp
+from trainer.grasps import FAMILIES, TopGrasp, record_grasp, searched
 from trainer.grasps.families import load_searched
 from trainer.grasps.keyframes import DIM, PARAMS, KeyframeGrasp, index, top_grasp_theta
 from trainer.grasps.search import cem
@@ -137,6 +138,117 @@ def _config(tmp_path: Path) -> Path:
     path = tmp_path / "noslip.toml"
     path.write_text("[physics]\nnoslip_iterations = 5\n")
     return path
+
+
+def _own_data_dir(data: Config, tmp_path: Path) -> Path:
+    """A data directory whose built objects are ``data``'s (linked) and whose searched grasps
+    are its own."""
+    own = tmp_path / "data"
+    own.mkdir()
+    for part in ("raw", "interim", "processed"):
+        (own / part).symlink_to(data.data_dir / part)
+    return own
+
+
+def _search(data_dir: Path, *extra: str) -> list[str]:
+    return ["trainer", "grasp-search", "--objects", "builtin_cylinder", "--population", "2",
+            "--trials", "1", "--iterations", "1", "--elite", "2", "--data-dir", str(data_dir),
+            *extra]
+
+
+def test_grasp_search_writes_the_data_directory_per_hand(
+    builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys,  # noqa: ANN001
+) -> None:
+    """With its defaults ``trainer grasp-search`` writes the object's grasp into the data
+    directory (``grasps/searched/<object>.json``), keyed by the hand and physics, never into
+    the package; another configuration adds a second grasp beside it (no "another
+    configuration" error); the ``searched`` family runs the one of the env's hand and physics;
+    a damaged file is one line, before any search."""
+    seed = searched.SEARCHED_PATH.read_bytes()
+    data_dir = _own_data_dir(builtin_data, tmp_path)
+    monkeypatch.setattr(sys, "argv", _search(data_dir))
+    trainer.cli.main()
+    path = searched.object_path(data_dir, "builtin_cylinder")
+    assert path == data_dir / "grasps" / "searched" / "builtin_cylinder.json"
+    assert f"written: {path}" in capsys.readouterr().out
+    assert searched.SEARCHED_PATH.read_bytes() == seed  # the package is not written
+    default = load_env_config(data_dir=data_dir)
+    grasps = searched.read_object(data_dir, "builtin_cylinder")
+    assert list(grasps) == [searched.hand_key(default)]
+    entry = grasps[searched.hand_key(default)]
+    assert entry["config"] == {} and set(entry["theta"]) == set(PARAMS)
+    assert entry["hand_and_physics"] == searched.hand_and_physics(default)
+    # Another hand's search goes beside it.
+    other = tmp_path / "soft.toml"
+    other.write_text("[robot]\nhand_forcerange = 1.5\n")
+    monkeypatch.setattr(sys, "argv", _search(data_dir, "--config", str(other)))
+    trainer.cli.main()
+    soft = load_env_config(other, data_dir=data_dir)
+    grasps = searched.read_object(data_dir, "builtin_cylinder")
+    assert set(grasps) == {searched.hand_key(default), searched.hand_key(soft)}
+    assert grasps[searched.hand_key(soft)]["config"] == {"robot": {"hand_forcerange": 1.5}}
+    # The family runs each env's own grasp.
+    script = FAMILIES["searched"].variants["base"].script
+    for cfg in (default, soft):
+        row = torch.tensor(searched.theta_row(grasps[searched.hand_key(cfg)]))
+        torch.testing.assert_close(script.env_theta(_FakeEnv(cfg, ["builtin_cylinder"]))[0], row)
+    # A damaged file is refused in one line, before anything is searched.
+    path.write_text("{}")
+    capsys.readouterr()
+    monkeypatch.setattr(sys, "argv", _search(data_dir))
+    with pytest.raises(SystemExit):
+        trainer.cli.main()
+    captured = capsys.readouterr()
+    assert captured.err.strip() == (
+        f"error: {path}: not a searched-grasp file ('grasps'): rerun trainer grasp-search")
+    assert "candidates" not in captured.out
+
+
+class _FakeEnv:
+    """What the keyframe grasp's rows need of an env: its config, objects and targets."""
+
+    def __init__(self, cfg, names: list[str]) -> None:  # noqa: ANN001
+        self.cfg, self.objects = cfg, SimpleNamespace(names=names)
+        self.num_envs, self.device = len(names), torch.device("cpu")
+
+    def target_objects(self) -> torch.Tensor:
+        return torch.arange(self.num_envs)
+
+
+def test_the_searched_family_falls_back_to_the_shipped_grasps(tmp_path: Path) -> None:
+    """Without grasps in the data directory the family runs the shipped ``searched.json``'s (as
+    before they moved); a data-directory grasp for the env's hand and physics takes its
+    object's place, one for another physics does not."""
+    seed = load_searched()["objects"]
+    names = ["062_dice", "053_mini_soccer_ball"]
+    cfg = load_env_config(data_dir=tmp_path)
+    script = FAMILIES["searched"].variants["base"].script
+    shipped = torch.tensor([searched.theta_row(seed[n]) for n in names])
+    torch.testing.assert_close(script.env_theta(_FakeEnv(cfg, names)), shipped)
+    assert searched.grasp_for(cfg, "062_dice") == seed["062_dice"]
+    assert searched.grasp_for(cfg, "builtin_box") is None
+    mine = {"theta": {p: 0.01 * i for i, p in enumerate(PARAMS)}}
+    searched.write_entry(tmp_path, "062_dice", searched.hand_key(cfg), mine)
+    theta = script.env_theta(_FakeEnv(cfg, names))
+    torch.testing.assert_close(theta[0], torch.tensor(searched.theta_row(mine)))
+    torch.testing.assert_close(theta[1], shipped[1])
+    assert searched.grasp_for(cfg, "062_dice") == mine
+    noslip0 = load_env_config(data_dir=tmp_path, physics={"noslip_iterations": 0})
+    torch.testing.assert_close(script.env_theta(_FakeEnv(noslip0, names)), shipped)
+    assert searched.grasp_for(noslip0, "062_dice") == seed["062_dice"]
+
+
+def test_the_hand_key_is_the_hand_and_the_physics() -> None:
+    """The key changes with the hand and the physics, not with how a policy's hand actions are
+    read or the thread count; the shipped grasps' configuration is today's default hand, so a
+    default search is what the family's runs (with that configuration) look up."""
+    key = searched.hand_key(load_env_config())
+    assert searched.hand_key(load_env_config(nthread=1)) == key
+    assert searched.hand_key(load_env_config(robot={"hand_action": "relative"})) == key
+    assert searched.hand_key(load_env_config(robot={"hand_forcerange": 1.5})) != key
+    assert searched.hand_key(load_env_config(physics={"substeps": 20})) != key
+    assert searched.hand_key(load_env_config(**load_searched()["config"])) == key
 
 
 def test_committed_searched_grasps_are_complete() -> None:

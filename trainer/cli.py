@@ -280,8 +280,9 @@ def grasp(
               help="Start from each object's grasp already in the file (default: from the top "
               "grasp); use with a smaller --spread.")
 @click.option("--out", type=click.Path(path_type=Path, dir_okay=False), default=None,
-              help="Searched-grasp file to add the results to [the package's searched.json, "
-              "which the `searched` grasp family reads].")
+              help="One searched-grasp file (one configuration for all its objects) to add the "
+              "results to [default: the data directory's grasps/searched/<object>.json, one "
+              "grasp per hand and physics, which the `searched` grasp family reads].")
 @_config_options
 def grasp_search(
     objects: str, population: int, trials: int, iterations: int, elite: int, seed: int,
@@ -292,8 +293,11 @@ def grasp_search(
     add it to the `searched` grasp family.
 
     Each iteration runs POPULATION x TRIALS envs; the final candidates are re-run on fresh
-    trials and the best is written with its lifts. The configuration (--config: the hand and
-    physics) is stored with the grasps: every object in one file shares it.
+    trials and the best is written with its lifts and the configuration it was searched with
+    (--config: the hand and physics): into the data directory, per object and hand and physics
+    (DATA_DIR/grasps/searched/<object>.json; the family runs it where the hand and physics are
+    the same, the shipped grasps elsewhere), or with --out into one file, whose objects share
+    one configuration.
     """
     for option, value, minimum in (("--population", population, 2), ("--trials", trials, 1),
                                    ("--iterations", iterations, 1), ("--elite", elite, 2),
@@ -309,17 +313,16 @@ def grasp_search(
     import torch
 
     from geomgrasp.files import atomic_path
-    from trainer.grasps.families import SEARCHED_PATH, load_searched
+    from trainer.grasps import searched
     from trainer.grasps.keyframes import PARAMS, top_grasp_theta
     from trainer.grasps.search import cem
     from trainer.objects import resolve_names
     from trainer.tasks import make_env
 
-    out = out or SEARCHED_PATH
     # The environment part of the config file, as written (read by the one TOML reader).
     config = {k: v for k, v in read_config_toml(config_path).items()
               if k not in ("ppo", "run", "objects", "num_envs", "data_dir")}
-    data = load_searched(out)
+    data = searched.load_searched(out) if out is not None else {"config": {}, "objects": {}}
     if data["objects"] and data["config"] != config:
         raise TrainerError(
             f"{out} holds grasps searched with another configuration ({data['config']}): pass "
@@ -330,9 +333,15 @@ def grasp_search(
                           **overrides)
     check_device(cfg.device, f"device {cfg.device!r} in {config_path}", 'set device = "cpu"')
     names = resolve_names(objects, cfg.data_dir)
+    key = searched.hand_key(cfg)
+    if out is None:  # what the family runs with this hand and physics (data dir, else seed)
+        data["objects"] = {n: e for n in names if (e := searched.grasp_for(cfg, n)) is not None}
     if refine and (missing := [n for n in names if n not in data["objects"]]):
-        raise TrainerError(f"--refine: {out} has no grasp for {', '.join(missing)}: search it "
-                           f"first without --refine")
+        where = out if out is not None else (
+            f"{cfg.data_dir / searched.STORE} (for this hand and physics) or "
+            f"{searched.SEARCHED_PATH.name}")
+        raise TrainerError(f"--refine: {where} has no grasp for {', '.join(missing)}: search "
+                           f"it first without --refine")
     for name in names:
         start = top_grasp_theta()
         if refine:
@@ -367,9 +376,15 @@ def grasp_search(
             "history": result.history,
             **({"earlier": earlier} if earlier else {}),
         }
-        with atomic_path(out) as tmp:
-            tmp.write_text(json.dumps(data, indent=1) + "\n")
-        click.echo(f"written: {out}")
+        if out is None:
+            written = searched.write_entry(cfg.data_dir, name, key, {
+                **data["objects"][name], "config": config,
+                "hand_and_physics": searched.hand_and_physics(cfg)})
+        else:
+            with atomic_path(out) as tmp:
+                tmp.write_text(json.dumps(data, indent=1) + "\n")
+            written = out
+        click.echo(f"written: {written}")
 
 
 @cli.command()

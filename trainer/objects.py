@@ -2,7 +2,9 @@
 
 geomprep is reached through its read-only contract (``geomprep.contract``: which objects, are
 they current, read one) and its SDF lookup (``geomprep.sdf_lookup``), neither of which imports
-the mesh stack.
+the mesh stack; and, on a data directory's first use, through the build step that writes the
+built-in objects' sources (``geomprep.importer.import_builtin``, which loads the mesh stack
+only when it writes).
 
 Object id = index in ``ObjectSet.names``. All quantities are in the object frame (origin at the
 centre of mass, the frame of the MJCF free body and of the SDF grid), metres.
@@ -16,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from geomprep import contract
+from geomprep import builtin, contract, importer
 from geomprep.errors import GeomprepError
 from geomprep.sdf_lookup import SDFLookup
 from trainer.config import EnvConfig
@@ -47,9 +49,12 @@ class ObjectSet:
 
 
 def resolve_names(spec: str, data_dir: Path) -> list[str]:
-    """Object names from a set (``builtin``, ``ycb``, ``all``) or a comma list."""
+    """Object names from a set (``builtin``, ``ycb``, ``all``) or a comma list; the built-in
+    objects among them are written into the raw store if they are not there yet."""
+    dirs = contract.DataDirs(Path(data_dir))
     try:
-        names = contract.resolve_objects(contract.DataDirs(Path(data_dir)), spec)
+        names = contract.resolve_objects(dirs, spec)
+        importer.import_builtin(dirs.raw_dir, [n for n in names if n in builtin.NAMES])
     except GeomprepError as exc:
         raise TrainerError(str(exc)) from None
     if not names:

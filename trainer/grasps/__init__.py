@@ -8,7 +8,8 @@ lift, each trial's outcome told from its recorded trajectory.
 * ``slide`` (``SlideGrasp``): palm up, fingers slid to a flat object's rim and curled under
   it; tips the plate, lifts nothing yet.
 * ``searched`` (``keyframes.KeyframeGrasp``): per object, a keyframe grasp found by the
-  cross-entropy search of ``search.py`` (``trainer grasp-search``), stored in ``searched.json``.
+  cross-entropy search of ``search.py`` (``trainer grasp-search``), stored per object and hand
+  in the data directory, the shipped ones in ``searched.json`` (``searched.py``).
 
 ``FAMILIES`` names them with their measured variants (``families.py``); ``run_scripted_grasp``
 / ``record_grasp`` run any of them (``runner.py``); ``outcomes.classify`` tells lifted / dropped

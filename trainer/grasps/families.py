@@ -10,16 +10,16 @@ is a family's parameter scan there.
 from __future__ import annotations
 
 import itertools
-import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from trainer.errors import TrainerError
-from trainer.grasps.keyframes import PARAMS, KeyframeGrasp
+from trainer.grasps.keyframes import KeyframeGrasp
 from trainer.grasps.pinch import Pinch
 from trainer.grasps.runner import GraspScript, episode_config, record_grasp
+from trainer.grasps.searched import data_rows, load_searched, theta_row
 from trainer.grasps.slide import SlideGrasp
 from trainer.grasps.top import TopGrasp
 
@@ -87,34 +87,13 @@ _RIM = replace(_TOP, grasp_depth=0.22, lateral=0.0)
 """The top grid's best geometry for the plate: the fingertips at its rim."""
 _PINCH = Pinch()
 
-SEARCHED_PATH = Path(__file__).with_name("searched.json")
-"""The grasps ``trainer grasp-search`` found, per object, and the configuration (hand,
-physics) they were searched and measured with."""
-
-
-def load_searched(path: Path = SEARCHED_PATH) -> dict[str, Any]:
-    """The searched grasps' file: ``{"config": {...}, "objects": {name: {"theta": {param:
-    value}, ...}}}`` (empty when there is none)."""
-    if not path.is_file():
-        return {"config": {}, "objects": {}}
-    try:
-        data = json.loads(path.read_text())
-        for name, entry in data["objects"].items():
-            missing = [p for p in PARAMS if p not in entry["theta"]]
-            if missing:
-                raise KeyError(f"{name}: {missing[0]}")
-    except (ValueError, KeyError, TypeError) as exc:
-        raise TrainerError(f"{path}: not a searched-grasp file ({exc}): rerun trainer "
-                           f"grasp-search") from None
-    return data
-
-
 def _searched_family() -> Family:
+    """The seed's grasps (``searched.SEARCHED_PATH``) with its configuration, each object's row
+    replaced, where the env's data directory has one for its hand and physics, by that."""
     data = load_searched()
-    rows = tuple((name, tuple(float(entry["theta"][p]) for p in PARAMS))
-                 for name, entry in sorted(data["objects"].items()))
-    return Family(KeyframeGrasp,
-                  {"base": Variant(KeyframeGrasp(by_object=rows), dict(data["config"]))},
+    rows = tuple((name, theta_row(entry)) for name, entry in sorted(data["objects"].items()))
+    script = KeyframeGrasp(by_object=rows, extra_rows=data_rows)
+    return Family(KeyframeGrasp, {"base": Variant(script, dict(data["config"]))},
                   tuple(name for name, _ in rows))
 
 
@@ -203,8 +182,9 @@ FAMILIES: dict[str, Family] = {
 }
 FAMILIES["searched"] = _searched_family()
 """The ``searched`` family: one keyframe grasp per object, found by the cross-entropy search
-of ``search.py`` (``trainer grasp-search``) and read from ``searched.json``; its variant runs
-with the configuration they were searched with."""
+of ``search.py`` (``trainer grasp-search``): the data directory's grasp for the env's hand and
+physics where there is one, else the shipped ``searched.json``'s (``searched.py``); its variant
+runs with the configuration the shipped grasps were searched with."""
 
 
 BEST = {

@@ -24,7 +24,7 @@ speed, hold 1 s.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import torch
@@ -72,10 +72,14 @@ def top_grasp_theta(top: TopGrasp | None = None) -> torch.Tensor:
 @dataclass(frozen=True, eq=False)  # eq=False: tensor fields have no truth value to compare
 class KeyframeGrasp:
     """A keyframe grasp per env: ``theta`` (E, D) or (D,) (the same for every env), or, when
-    ``by_object`` is given, the row of each env's target object (object name -> (D,) values)."""
+    ``by_object`` is given, the row of each env's target object (object name -> (D,) values).
+    ``extra_rows``: rows looked up for the env when the grasp is planned,
+    which take the place of ``by_object``'s (the ``searched`` family: the grasps searched in
+    the env's data directory with its hand and physics, ``searched.data_rows``)."""
 
     theta: torch.Tensor | None = None
     by_object: tuple[tuple[str, tuple[float, ...]], ...] = ()
+    extra_rows: Callable[[GraspTask], dict[str, tuple[float, ...]]] | None = None
     approach_steps: int = 40
     descend_steps: int = 35
     close_steps: int = 30
@@ -118,6 +122,8 @@ class KeyframeGrasp:
         if self.theta is not None:
             return self.theta.to(env.device).expand(env.num_envs, DIM)
         table = dict(self.by_object)
+        if self.extra_rows is not None:
+            table.update(self.extra_rows(env))
         names = env.objects.names
         missing = sorted({names[k] for k in env.target_objects().unique().tolist()} - set(table))
         if missing:

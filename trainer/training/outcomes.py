@@ -1,17 +1,24 @@
 """What the ended episodes of training say: success at the task's lift height (over all
 episodes and per target object), the running return and length of every env's episode, and the
-rollout's episode statistics for ``metrics.csv``."""
+rollout's episode statistics for ``metrics.csv``.
+
+The lift curriculum (``curriculum.py``) counts its own windows with ``ObjectOutcomes``; it is
+handed the ended episodes as an ``OutcomeSink``, so this module does not import it."""
 
 from __future__ import annotations
 
 from collections import deque
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import torch
 from tensordict import TensorDictBase
 
-if TYPE_CHECKING:
-    from trainer.training.curriculum import LiftCurriculum
+
+class OutcomeSink(Protocol):
+    """What ``EpisodeStats.record`` tells of the ended episodes: their target object and success
+    at the target they trained for (``trainer.training.curriculum.LiftCurriculum``)."""
+
+    def record(self, object_ids: list[int], successes: list[bool]) -> None: ...
 
 
 class ObjectOutcomes:
@@ -69,7 +76,7 @@ class EpisodeStats:
         """The mean over the objects of their own rates (NaN: none yet)."""
         return self.objects.rate()
 
-    def record(self, data: TensorDictBase, curriculum: LiftCurriculum) -> dict[str, float]:
+    def record(self, data: TensorDictBase, curriculum: OutcomeSink) -> dict[str, float]:
         """Walk a rollout ``data`` of shape (num_envs, T) in time (a loop over T steps, not over
         envs): accumulate the running returns, record the episodes that ended here and, by
         their success at its current training target(s), in ``curriculum`` (not those that

@@ -1,0 +1,136 @@
+"""Where the searched grasps (``trainer grasp-search``) are kept, and how the ``searched``
+family reads them.
+
+- **The data directory**, per object: ``DATA_DIR/grasps/searched/<object>.json``, one grasp per
+  hand and physics it was searched with (``hand_key``: the resolved ``[robot]`` and
+  ``[physics]`` sections). ``trainer grasp-search`` writes there by default; never into the
+  installed package.
+- **The shipped seed**, ``searched.json`` beside this module (read-only): the grasps the
+  ``searched`` family was measured with (results/graspability-search-2026-11-26/), one
+  configuration for all objects: ``{"config": {...}, "objects": {name: entry}}``. ``trainer
+  grasp-search --out FILE`` writes a file of this format.
+
+An entry is ``{"theta": {param: value}, "lifted", "final_trials", "search", "history"}`` (and
+``earlier``: the searches a ``--refine`` continued). The ``searched`` family's keyframe grasp
+takes each object's row from the data directory's entry for the env's hand and physics where
+there is one (``data_rows``), else from the seed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from geomgrasp.files import atomic_path
+from trainer.config import EnvConfig
+from trainer.errors import TrainerError
+from trainer.grasps.keyframes import PARAMS
+
+if TYPE_CHECKING:
+    from trainer.tasks import GraspTask
+
+SEARCHED_PATH = Path(__file__).with_name("searched.json")
+"""The shipped seed: the grasps ``trainer grasp-search`` found, per object, and the
+configuration (hand, physics) they were searched and measured with (read-only)."""
+STORE = Path("grasps") / "searched"
+"""The searched grasps' folder in a data directory (one file per object)."""
+_SCRIPT_ONLY = ("hand_action", "hand_relative_step")
+"""``[robot]`` fields that do not change what a scripted grasp does (the scripts command
+absolute hand targets: ``runner.script_config``)."""
+
+
+def hand_key(cfg: EnvConfig) -> str:
+    """The hand and physics of ``cfg`` as a short hash: the resolved ``[robot]`` (less how a
+    policy's hand actions are read) and ``[physics]`` sections. A grasp searched with one key
+    is used only where the env's key is the same."""
+    payload = json.dumps(hand_and_physics(cfg), sort_keys=True)
+    return hashlib.sha256(payload.encode()).hexdigest()[:16]
+
+
+def hand_and_physics(cfg: EnvConfig) -> dict[str, Any]:
+    """What ``hand_key`` hashes, as stored beside each data-directory entry (for reading)."""
+    robot = {k: v for k, v in dataclasses.asdict(cfg.robot).items() if k not in _SCRIPT_ONLY}
+    return json.loads(json.dumps({"robot": robot, "physics": dataclasses.asdict(cfg.physics)}))
+
+
+def object_path(data_dir: Path, name: str) -> Path:
+    """``DATA_DIR/grasps/searched/<name>.json``: the searched grasps of object ``name``."""
+    return Path(data_dir) / STORE / f"{name}.json"
+
+
+def _check_entries(entries: Any) -> None:
+    for name, entry in entries.items():
+        missing = [p for p in PARAMS if p not in entry["theta"]]
+        if missing:
+            raise KeyError(f"{name}: {missing[0]}")
+
+
+def _damaged(path: Path, exc: Exception) -> TrainerError:
+    return TrainerError(f"{path}: not a searched-grasp file ({exc}): rerun trainer grasp-search")
+
+
+def load_searched(path: Path = SEARCHED_PATH) -> dict[str, Any]:
+    """A searched-grasp file of one configuration (the shipped seed, or ``grasp-search --out
+    FILE``): ``{"config": {...}, "objects": {name: {"theta": {param: value}, ...}}}`` (empty
+    when there is none); a damaged one is a one-line error."""
+    if not path.is_file():
+        return {"config": {}, "objects": {}}
+    try:
+        data = json.loads(path.read_text())
+        _check_entries(data["objects"])
+    except (ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise _damaged(path, exc) from None
+    return data
+
+
+def read_object(data_dir: Path, name: str) -> dict[str, dict[str, Any]]:
+    """Object ``name``'s searched grasps in the data directory: ``hand_key`` -> entry (empty
+    when there are none); a damaged file is a one-line error."""
+    path = object_path(data_dir, name)
+    if not path.is_file():
+        return {}
+    try:
+        grasps = json.loads(path.read_text())["grasps"]
+        _check_entries(grasps)
+    except (ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise _damaged(path, exc) from None
+    return grasps
+
+
+def write_entry(data_dir: Path, name: str, key: str, entry: dict[str, Any]) -> Path:
+    """Store ``entry`` as object ``name``'s grasp for the hand and physics ``key`` (replacing
+    the one of that key, keeping the others); returns the file."""
+    grasps = read_object(data_dir, name)
+    grasps[key] = entry
+    path = object_path(data_dir, name)
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps({"object": name, "grasps": grasps}, indent=1) + "\n")
+    return path
+
+
+def grasp_for(cfg: EnvConfig, name: str) -> dict[str, Any] | None:
+    """The grasp the ``searched`` family runs on object ``name`` with ``cfg``'s hand and
+    physics: the data directory's entry of that key, else the seed's, else None."""
+    found = read_object(cfg.data_dir, name).get(hand_key(cfg))
+    return found if found is not None else load_searched()["objects"].get(name)
+
+
+def theta_row(entry: dict[str, Any]) -> tuple[float, ...]:
+    """An entry's parameters in the order of ``keyframes.PARAMS``."""
+    return tuple(float(entry["theta"][p]) for p in PARAMS)
+
+
+def data_rows(env: GraspTask) -> dict[str, tuple[float, ...]]:
+    """Object name -> parameters, for the objects of ``env`` that have a grasp in its data
+    directory searched with its hand and physics (``KeyframeGrasp.extra_rows`` of the
+    ``searched`` family)."""
+    key = hand_key(env.cfg)
+    rows = {}
+    for name in env.objects.names:
+        entry = read_object(env.cfg.data_dir, name).get(key)
+        if entry is not None:
+            rows[name] = theta_row(entry)
+    return rows
