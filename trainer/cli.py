@@ -80,6 +80,7 @@ def cli() -> None:
       trainer eval runs/NAME                # per-object success table
       trainer report runs/*                 # mean +- std tables and plots over seeds
       trainer play runs/NAME --object 013_apple --video out.mp4
+      trainer config [KEY...]               # every config key: default, range, the paper's
 
     Objects come from geomprep's output (``data/processed``); build them first with
     ``geomprep build-all``.
@@ -652,6 +653,33 @@ def play(
     click.echo(f"{names[0]}: success {int(success[ids].sum())}/{len(ids)}, "
                f"{int(length[ids].max())} steps; video: {video} ({len(filmed)} episodes, "
                f"{shown} of them successes)")
+
+
+@cli.command("config")
+@click.argument("keys", nargs=-1)
+@click.option("--paper", "paper_only", is_flag=True, help="Only the keys the paper states.")
+@click.option("--markdown", type=click.Path(path_type=Path, dir_okay=False), default=None,
+              help="Write every key as a Markdown page to this file (docs/config.md) instead.")
+def config_cmd(keys: tuple[str, ...], paper_only: bool, markdown: Path | None) -> None:
+    """Every config key: its default, the values it accepts, what the paper states ("ours":
+    nothing, a key of this project) and what it does, section by section.
+
+    KEYS: only the keys whose name contains one of them, or a section (reward, ppo, run).
+    Set a key in a --config TOML file (in its [section]) or with --set section.key=value.
+    """
+    from trainer.config_keys import listing, select
+    from trainer.config_keys import markdown as page
+
+    if markdown is not None:
+        if keys or paper_only:
+            raise TrainerError("--markdown writes every key: drop the KEYS and --paper")
+        from geomgrasp.files import atomic_path
+
+        with atomic_path(markdown) as tmp:
+            tmp.write_text(page(), encoding="utf-8")
+        click.echo(f"written: {markdown}")
+        return
+    click.echo(listing(select(keys, paper_only)), nl=False)
 
 
 def format_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
