@@ -7,10 +7,13 @@
     [physics]
     substeps = 12
 
+and ``--set section.key=value`` any one from the command line (``trainer.config_keys``).
+
 Each key declares its default and the values it accepts (``bounded``), and, for the keys of the
 paper's method, what the paper states (``bounded(..., paper=...)``); a key without it is this
 project's own. Its docstring says in a few lines what it does and links the results/ folders
-that measured it; the longer history is in results/config-evidence.md.
+that measured it; the longer history is in results/config-evidence.md. ``trainer config`` lists
+every key and writes docs/config.md.
 
 Physics choices (documented here because they decide whether a grasp holds): MuJoCo's
 ``implicitfast`` integrator, elliptic friction cones with ``condim = 4`` (torsional friction
@@ -23,14 +26,20 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
 from geomgrasp import materials
-from geomgrasp.config_schema import Checked, bounded, build_dataclass, field_error, read_toml
+from geomgrasp.config_schema import (
+    Checked,
+    bounded,
+    build_dataclass,
+    field_error,
+    read_toml,
+    toml_value,
+)
 from geomgrasp.materials import ContactMaterial
 from trainer.errors import TrainerError
 
@@ -605,10 +614,21 @@ def _toml_env(values: dict[str, Any], path: Path | None) -> EnvConfig:
     return _build(EnvConfig, env, str(path)) if env else EnvConfig()
 
 
-def load_env_config(path: Path | None = None, **overrides: Any) -> EnvConfig:
-    """Defaults, then the TOML file at ``path``, then keyword ``overrides`` (top-level fields,
-    whole sections or dicts of section fields), e.g. ``load_env_config(num_envs=16)``."""
+def _set_names(sets: Mapping[str, Any]) -> dict[str, str]:
+    """How errors name each ``--set`` value: the assignment as given."""
+    return {key: f"--set {key}={toml_value(value)}" for key, value in sets.items()}
+
+
+def load_env_config(
+    path: Path | None = None, sets: Mapping[str, Any] | None = None, **overrides: Any
+) -> EnvConfig:
+    """Defaults, then the TOML file at ``path``, then ``sets`` (``--set``: dotted keys as the
+    file writes them, checked by ``trainer.config_keys.parse_sets``; as if the file said them),
+    then keyword ``overrides`` (top-level fields, whole sections or dicts of section fields),
+    e.g. ``load_env_config(num_envs=16)``."""
     cfg = _toml_env(read_config_toml(path), path)
+    if sets:
+        cfg = _build(EnvConfig, dotted_overrides(sets), None, base=cfg, names=_set_names(sets))
     return _build(EnvConfig, overrides, None, base=cfg) if overrides else cfg
 
 
@@ -618,9 +638,11 @@ def load_train_config(
     ppo: dict[str, Any] | None = None,
     run: dict[str, Any] | None = None,
     names: Mapping[str, str] | None = None,
+    sets: Mapping[str, Any] | None = None,
 ) -> TrainConfig:
     """Defaults, then the TOML file (environment knobs as in ``load_env_config`` plus ``[ppo]``
-    and ``[run]`` sections), then the override dicts (command-line options; ``names`` maps their
+    and ``[run]`` sections), then ``sets`` (``--set``, as in ``load_env_config``; ``ppo.`` and
+    ``run.`` keys too), then the override dicts (command-line options; ``names`` maps their
     keys, dotted below the section, to the options, which errors then name)."""
     values = read_config_toml(path)
     cfg = TrainConfig(
@@ -628,6 +650,20 @@ def load_train_config(
         _build(PPOConfig, values.get("ppo", {}), str(path), "ppo"),
         _build(RunConfig, values.get("run", {}), str(path), "run"),
     )
+    if sets:
+        given = _set_names(sets)
+        parts: dict[str, dict[str, Any]] = {"env": {}, "ppo": {}, "run": {}}
+        for key, value in sets.items():
+            section, _, rest = key.partition(".")
+            if section in ("ppo", "run") and rest:
+                parts[section][rest] = value
+            else:
+                parts["env"][key] = value
+        cfg = TrainConfig(
+            _build(EnvConfig, dotted_overrides(parts["env"]), None, base=cfg.env, names=given),
+            _build(PPOConfig, parts["ppo"], None, "ppo", base=cfg.ppo, names=given),
+            _build(RunConfig, parts["run"], None, "run", base=cfg.run, names=given),
+        )
     return TrainConfig(
         _build(EnvConfig, env or {}, None, base=cfg.env, names=names),
         _build(PPOConfig, ppo or {}, None, base=cfg.ppo, names=names),
@@ -690,31 +726,7 @@ def read_train_config(path: Path) -> TrainConfig:
     return train_config_from_dict(values, str(path))
 
 
-# --- command-line overrides (bench/graspability.py, bench/env_throughput.py) ----------------
-def parse_value(text: str) -> Any:
-    """A command-line value (the benchmarks' ``--set KEY=VALUE``) as TOML reads it (``0.75``,
-    ``true``, ``[1, 2]``); a bare word that is not TOML (``hulls``) is a string."""
-    try:
-        return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        return text
-
-
-def parse_assignment(text: str, option: str) -> tuple[str, str]:
-    """``KEY=VALUE`` -> (key, value text); anything else is a one-line error naming ``option``."""
-    key, sep, value = text.partition("=")
-    if not sep or not key.strip() or not value.strip():
-        raise TrainerError(f"{option} {text!r}: write KEY=VALUE, e.g. robot.hand_geometry=hulls")
-    return key.strip(), value.strip()
-
-
-def parse_sets(texts: list[str], option: str = "--set") -> dict[str, Any]:
-    """``KEY=VALUE`` texts -> {dotted key: parsed value} (``parse_value``); a malformed one is a
-    one-line error naming ``option``."""
-    pairs = (parse_assignment(text, option) for text in texts)
-    return {key: parse_value(value) for key, value in pairs}
-
-
+# --- command-line overrides (``--set``: trainer.config_keys) ---------------------------------
 def dotted_overrides(values: Mapping[str, Any]) -> dict[str, Any]:
     """Dotted keys -> ``load_env_config`` keyword overrides (``section.field`` becomes a dict of
     the section's fields; a key without a dot is a top-level field)."""

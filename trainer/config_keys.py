@@ -1,7 +1,8 @@
 """Every key of the trainer's configuration, from one source: the dataclasses of
 ``trainer.config``, their ``bounded`` fields (default, limits, the paper's setting) and their
-docstrings. ``trainer config`` prints them and ``trainer config --markdown docs/config.md`` writes
-them as a page.
+docstrings. ``trainer config`` prints them, ``trainer config --markdown docs/config.md`` writes
+them as a page, and ``parse_sets`` checks the ``--set section.key=value`` options of the
+``trainer`` commands and of the benchmarks against them.
 
 A key is named as a TOML file writes it: ``num_envs`` (the top level), ``reward.c3`` (in
 ``[reward]``), ``ppo.lr``, ``run.seed``.
@@ -10,13 +11,16 @@ A key is named as a TOML file writes it: ``num_envs`` (the top level), ``reward.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import re
+import tomllib
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from geomgrasp.config_schema import (
+    check_value,
     describe_type,
     field_docs,
     field_limits,
@@ -109,6 +113,75 @@ def all_keys(training: bool = True) -> list[Key]:
     return [key for name, cls in sections(training).items() for key in _section_keys(cls, name)]
 
 
+# --- --set section.key=value ---------------------------------------------------------------
+def parse_value(text: str) -> Any:
+    """A command-line value as TOML reads it (``0.75``, ``true``, ``[1, 2]``, ``"a b"``); a bare
+    word that is not TOML (``hulls``) is a string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def parse_assignment(text: str, option: str) -> tuple[str, str]:
+    """``KEY=VALUE`` -> (key, value text); anything else is a one-line error naming ``option``."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip() or not value.strip():
+        raise TrainerError(
+            f"{option} {text!r}: write KEY=VALUE with KEY as section.key, e.g. "
+            "robot.hand_geometry=hulls (trainer config lists the keys)"
+        )
+    return key.strip(), value.strip()
+
+
+def check_set(key: str, value: Any, given: str, training: bool = True) -> None:
+    """Check one assignment (``given``: how the user wrote it, which the error names): the key
+    exists (``training``: ``ppo.`` and ``run.`` keys too) and the value fits it. Every problem
+    is a one-line ``TrainerError`` that says what to do instead."""
+    keys = {k.path: k for k in all_keys(training=True)}
+    names = sections(training=True)
+    if key in names and key:
+        first = next(k for k in keys.values() if k.section == key)
+        raise TrainerError(
+            f"{given}: [{key}] is a section: set one of its keys, e.g. "
+            f"{first.path}={toml_value(first.default)} (trainer config {key} lists them)"
+        )
+    if key not in keys:
+        section = key.partition(".")[0] if "." in key else ""
+        pool = list(keys) if section in names else [*keys, *names]
+        close = difflib.get_close_matches(key, pool, n=1)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        raise TrainerError(f"{given}: unknown key {key}{hint}: trainer config lists every key")
+    found = keys[key]
+    if not training and found.section in TRAINING_SECTIONS:
+        raise TrainerError(
+            f"{given}: [{found.section}] configures training, which this command does not run: "
+            "drop it"
+        )
+    try:
+        check_value(found.owner, found.name, value, TrainerError)
+    except TrainerError as exc:
+        raise TrainerError(
+            f"{given}: {exc} (the default: {key} = {toml_value(found.default)})"
+        ) from None
+
+
+def parse_sets(
+    texts: Iterable[str], option: str = "--set", training: bool = False
+) -> dict[str, Any]:
+    """``section.key=value`` texts -> {dotted key: value as TOML reads it (``parse_value``)},
+    each checked (``check_set``; ``training``: ``ppo.`` and ``run.`` keys allowed) before any
+    is used; a later one of the same key wins. The one parser of the ``trainer`` commands'
+    ``--set`` and the benchmarks' ``--set`` / ``--variant``."""
+    out: dict[str, Any] = {}
+    for text in texts:
+        key, value_text = parse_assignment(text, option)
+        value = parse_value(value_text)
+        check_set(key, value, f"{option} {key}={value_text}", training)
+        out[key] = value
+    return out
+
+
 # --- trainer config ------------------------------------------------------------------------
 def _heading(section: str) -> str:
     return f"[{section}]" if section else "top level (the environment)"
@@ -183,8 +256,10 @@ def markdown() -> str:
         "",
         "Every key of `trainer run` and the other commands that read a config. A TOML file "
         "(`--config FILE`) sets any of them: the top-level keys at the top, the others in their "
-        "`[section]` (`configs/` has the presets); options such as `--repr` win over it. "
-        "`trainer config [KEY...]` prints this list.",
+        "`[section]` (`configs/` has the presets). `--set section.key=value` sets one on the "
+        "command line (repeatable; the value as TOML writes it), as if the file said it. An "
+        "option such as `--repr` wins over the file, and is refused with a `--set` of the "
+        "same key. `trainer config [KEY...]` prints this list.",
         "",
         "**paper**: the setting as the paper (Mosbach & Behnke 2022) states it, for the keys of "
         "its method; `configs/paper.toml` collects them. A key without one is this project's "
