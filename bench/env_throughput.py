@@ -78,8 +78,8 @@ from trainer.config import (
     dotted_overrides,
     load_env_config,
     override,
-    parse_sets,
 )
+from trainer.config_keys import parse_sets
 from trainer.errors import TrainerError
 from trainer.objects import resolve_names
 from trainer.sim import make_backend
@@ -463,6 +463,10 @@ def main() -> None:
     parser.add_argument("--memory-objects", default="ycb")
     parser.add_argument("--memory-bin-objects", type=int, default=10)
     args = parser.parse_args()
+    try:
+        variants(args)  # every --set and --variant checked before anything is built
+    except TrainerError as exc:
+        raise SystemExit(f"env_throughput: {exc}") from None
     torch.set_num_threads(1)
     if args.policy is not None:
         try:

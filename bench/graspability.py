@@ -47,10 +47,11 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from geomgrasp.config_schema import toml_value
 from geomgrasp.errors import UserError
 from geomgrasp.files import atomic_path
 from trainer.config import dotted_overrides as overrides
-from trainer.config import parse_assignment, parse_sets, parse_value
+from trainer.config_keys import check_set, parse_assignment, parse_sets, parse_value
 from trainer.grasps.families import HOLD_KEYS
 
 COLUMNS = ("object", "family", "trials", "lifted", "dropped", "no_grip", "pushed")
@@ -66,6 +67,8 @@ def configurations(sets: list[str], grids: list[str]) -> list[dict[str, Any]]:
     for g in grids:
         key, values = parse_assignment(g, "--grid")
         axes.append((key, [parse_value(v) for v in values.split(",") if v.strip()]))
+        for value in axes[-1][1]:
+            check_set(key, value, f"--grid {key}={toml_value(value)}", training=False)
     configs: list[dict[str, Any]] = [{}]
     for combo in itertools.product(*(values for _, values in axes)):
         config = {**fixed, **{key: v for (key, _), v in zip(axes, combo, strict=True)}}

@@ -88,7 +88,8 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def run(args: argparse.Namespace) -> None:
-    from trainer.config import dotted_overrides, load_env_config, parse_sets
+    from trainer.config import dotted_overrides, load_env_config
+    from trainer.config_keys import parse_sets
     from trainer.grasps.families import merge_overrides, variants
     from trainer.grasps.runner import script_config
     from trainer.objects import resolve_names

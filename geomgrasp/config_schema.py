@@ -1,16 +1,20 @@
 """Frozen config dataclasses from TOML: the one loader of geomprep's and the trainer's configs.
 
-A field declares its default and the values it accepts (``bounded``); ``Checked`` enforces them
-however the dataclass is made; ``build_dataclass`` fills a dataclass from a TOML table, a JSON
-object or command-line overrides and words every bad value as one line naming where it came
-from. Each package raises its own error type (``Checked.error``, the ``error`` arguments).
+A field declares its default, the values it accepts and whether the paper states it
+(``bounded``); ``Checked`` enforces the limits however the dataclass is made;
+``build_dataclass`` fills a dataclass from a TOML table, a JSON object or command-line overrides
+and words every bad value as one line naming where it came from; ``check_value`` checks one
+value of one field; ``field_docs`` reads the fields' docstrings from the source. Each package
+raises its own error type (``Checked.error``, the ``error`` arguments).
 """
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import difflib
 import functools
+import inspect
 import json
 import math
 import os
@@ -31,14 +35,31 @@ def bounded(
     gt: float | None = None,
     le: float | None = None,
     choices: tuple[Any, ...] | None = None,
+    paper: str | None = None,
 ) -> Any:
     """A dataclass field with a default and the values it accepts (for a tuple, every element),
     enforced by ``Checked.__post_init__`` however the dataclass is made (TOML, command line,
-    config.json, ``dataclasses.replace``): ``substeps: int = bounded(10, ge=1)``."""
+    config.json, ``dataclasses.replace``): ``substeps: int = bounded(10, ge=1)``.
+
+    ``paper``: the setting as the paper states it (``"16384"``; words where it states several),
+    for the keys of the paper's method; a field without it is the project's own (``paper_value``).
+    """
     limits = {"ge": ge, "gt": gt, "le": le, "choices": choices}
-    return field(
-        default=default, metadata={"limits": {k: v for k, v in limits.items() if v is not None}}
-    )
+    metadata: dict[str, Any] = {"limits": {k: v for k, v in limits.items() if v is not None}}
+    if paper is not None:
+        metadata["paper"] = paper
+    return field(default=default, metadata=metadata)
+
+
+def paper_value(f: dataclasses.Field) -> str | None:
+    """What the paper states for field ``f`` (``bounded(..., paper=...)``), or None for a field
+    that is the project's own."""
+    return f.metadata.get("paper")
+
+
+def field_limits(f: dataclasses.Field) -> dict[str, Any]:
+    """Field ``f``'s ``bounded`` limits ({} for none)."""
+    return f.metadata.get("limits", {})
 
 
 def _within(value: Any, limits: dict[str, Any]) -> bool:
@@ -53,7 +74,8 @@ def _within(value: Any, limits: dict[str, Any]) -> bool:
         return False
 
 
-def _limits_text(limits: dict[str, Any]) -> str:
+def limits_text(limits: dict[str, Any]) -> str:
+    """``bounded`` limits in words: ``>= 1``, ``one of "cpu", "warp"``."""
     if "choices" in limits:
         return "one of " + ", ".join(toml_value(c) for c in limits["choices"])
     words = {"ge": ">=", "gt": ">", "le": "<="}
@@ -85,10 +107,10 @@ class Checked:
                 continue
             if isinstance(value, tuple):
                 if not all(_within(v, limits) for v in value):
-                    text = f"each element must be {_limits_text(limits)}"
+                    text = f"each element must be {limits_text(limits)}"
                     raise field_error(self.error, f.name, value, text)
             elif not _within(value, limits):
-                raise field_error(self.error, f.name, value, f"must be {_limits_text(limits)}")
+                raise field_error(self.error, f.name, value, f"must be {limits_text(limits)}")
 
 
 def toml_value(value: Any) -> str:
@@ -164,19 +186,19 @@ def _convert(value: Any, tp: Any) -> Any:
 _PLURALS = {bool: "booleans", int: "integers", float: "numbers", str: "strings", Path: "paths"}
 
 
-def _describe(tp: Any) -> str:
+def describe_type(tp: Any) -> str:
     """Annotation ``tp`` in words, for "expected ..." messages."""
     origin, args = get_origin(tp), get_args(tp)
     if origin is Literal:
         return "one of " + ", ".join(toml_value(a) for a in args)
     if origin is Union or origin is types.UnionType:
-        return " or ".join(_describe(a) for a in args if a is not type(None))
+        return " or ".join(describe_type(a) for a in args if a is not type(None))
     if origin is tuple:
         if len(args) == 2 and args[1] is Ellipsis:
-            return f"a list of {_PLURALS.get(args[0], _describe(args[0]))}"
+            return f"a list of {_PLURALS.get(args[0], describe_type(args[0]))}"
         if len(set(args)) == 1 and args[0] in _PLURALS:
             return f"a list of {len(args)} {_PLURALS[args[0]]}"
-        return f"a list of {len(args)} values ({', '.join(_describe(a) for a in args)})"
+        return f"a list of {len(args)} values ({', '.join(describe_type(a) for a in args)})"
     if dataclasses.is_dataclass(tp):
         return "a table (a [section])"
     words = {
@@ -187,8 +209,47 @@ def _describe(tp: Any) -> str:
 
 
 @functools.cache
-def _hints(cls: type) -> dict[str, Any]:
+def field_types(cls: type) -> dict[str, Any]:
+    """The resolved annotation of each field of dataclass ``cls``."""
     return get_type_hints(cls)
+
+
+def check_value(cls: type, name: str, value: Any, error: type[Exception] = UserError) -> Any:
+    """``value`` for field ``name`` of dataclass ``cls`` converted as the loader converts it
+    (``_convert``) and checked against the field's ``bounded`` limits, or ``error`` with the
+    problem alone ("expected an integer", "must be >= 1"): the caller says where the value came
+    from. Checks that span fields are left to building the dataclass."""
+    f = {f.name: f for f in dataclasses.fields(cls)}[name]
+    tp = field_types(cls)[name]
+    try:
+        converted = _convert(value, tp)
+    except _WrongType as exc:
+        raise error(str(exc) or f"expected {describe_type(tp)}") from None
+    limits = field_limits(f)
+    if limits:
+        if isinstance(converted, tuple):
+            if not all(_within(v, limits) for v in converted):
+                raise error(f"each element must be {limits_text(limits)}")
+        elif not _within(converted, limits):
+            raise error(f"must be {limits_text(limits)}")
+    return converted
+
+
+@functools.cache
+def field_docs(cls: type) -> dict[str, str]:
+    """The docstring of each field of class ``cls`` that has one (the string literal after the
+    field, read from the source: Python keeps no attribute docstrings), dedented."""
+    tree = ast.parse(inspect.cleandoc("\n" + inspect.getsource(cls)))
+    body = next(node for node in tree.body if isinstance(node, ast.ClassDef)).body
+    docs = {}
+    for node, after in zip(body, body[1:], strict=False):
+        if (
+            isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
+            and isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant)
+            and isinstance(after.value.value, str)
+        ):
+            docs[node.target.id] = inspect.cleandoc(after.value.value)
+    return docs
 
 
 def build_dataclass(
@@ -209,7 +270,8 @@ def build_dataclass(
     A bad value raises ``error`` with one line naming where it came from: ``source`` (the file;
     None for overrides from the command line or code), the ``section`` (dotted), the key, the
     value, what was expected and the default as an example. ``names`` maps a key (dotted from
-    ``section``) to the command-line option that set it, named instead: ``--seed -1: ...``.
+    ``section``) to the command-line option that set it, named instead: ``--seed -1: ...``, or
+    to the whole assignment that set it (a name with ``=``): ``--set run.seed=-1: ...``.
     """
     place = " ".join(p for p in (source, f"[{section}]" if section else "") if p)
     if not isinstance(values, Mapping):
@@ -222,7 +284,8 @@ def build_dataclass(
     def label(key: str, value: Any) -> str:
         path = f"{section}.{key}" if section else key
         if names and path in names:
-            return f"{names[path]} {value}"
+            given = names[path]
+            return given if "=" in given else f"{given} {value}"
         return f"{place} {key} = {toml_value(value)}".strip()
 
     def example(key: str) -> str:
@@ -241,7 +304,7 @@ def build_dataclass(
                 f"{place + ': ' if place else ''}unknown {what}{hint}: "
                 f"valid keys are {', '.join(fields) or 'none'}"
             )
-        tp = _hints(cls)[key]
+        tp = field_types(cls)[key]
         if dataclasses.is_dataclass(tp) and isinstance(value, Mapping):
             kwargs[key] = build_dataclass(
                 tp, value, source, error, section=f"{section}.{key}" if section else key,
@@ -251,7 +314,7 @@ def build_dataclass(
         try:
             kwargs[key] = _convert(value, tp)
         except _WrongType as exc:
-            problem = str(exc) or f"expected {_describe(tp)}"
+            problem = str(exc) or f"expected {describe_type(tp)}"
             raise error(f"{label(key, value)}: {problem}{example(key)}") from None
     try:
         return dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)

@@ -47,3 +47,11 @@ def test_unknown_run_or_key_is_one_line(tmp_path: Path) -> None:
     done = bench("--policy", str(tmp_path / "nowhere"))
     assert done.returncode != 0 and "Traceback" not in done.stderr
     assert "--policy" in done.stderr.strip().splitlines()[-1]
+
+
+def test_a_bad_set_or_variant_is_one_line_before_anything_is_built() -> None:
+    for option, text in (("--set", "physics.substep=0"), ("--variant", "physics.sleep=maybe")):
+        done = bench(option, text)
+        err = done.stderr.strip()
+        assert done.returncode != 0 and "\n" not in err, err
+        assert err.startswith(f"env_throughput: {option} {text}: "), err

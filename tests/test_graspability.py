@@ -72,7 +72,10 @@ def test_seeds_parse_and_held_trials_pool_over_them() -> None:
         (["--seed", "1-x"], "error: --seed '1-x': give seeds >= 0 as 3, 0,1,2 or 0-4"),
         (["--hold-out", "trials.csv"], "error: --hold-out writes the hold probe's trials: add"),
         (["--set", "robot.hand_geometry=spheres"],
-         'error: [robot] hand_geometry = "spheres": must be one of "capsules", "hulls"'),
+         'error: --set robot.hand_geometry=spheres: must be one of "capsules", "hulls"'),
+        (["--grid", "robot.hand_forcerange=5.0,-1"],
+         "error: --grid robot.hand_forcerange=-1: must be > 0"),
+        (["--set", "ppo.lr=0.1"], "error: --set ppo.lr=0.1: [ppo] configures training"),
         # A key the chosen variant fixes itself would leave the configurations identical.
         (["--family", "pinch:press6+noslip", "--grid", "physics.noslip_iterations=0,5"],
          "error: physics.noslip_iterations: the family pinch:press6+noslip fixes it"),

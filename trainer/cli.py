@@ -28,6 +28,7 @@ from trainer.config import (  # noqa: E402
     TASKS,
     check_backend,
     check_device,
+    dotted_overrides,
     load_env_config,
     load_train_config,
     override,
@@ -62,6 +63,22 @@ def _run_dir(path: Path) -> Path:
     return path
 
 
+def _sets(texts: tuple[str, ...], training: bool = False) -> dict:
+    """The ``--set`` options, checked (``trainer.config_keys.parse_sets``); ``training``:
+    ``[ppo]`` and ``[run]`` keys too."""
+    from trainer.config_keys import parse_sets
+
+    return parse_sets(texts, training=training)
+
+
+def _one_source(sets: dict, options: dict[str, str]) -> None:
+    """Refuse a key set both by ``--set`` and by an option (``options``: key -> the option that
+    set it): which should win?"""
+    if clash := sorted(sets.keys() & options.keys()):
+        key = clash[0]
+        raise TrainerError(f"--set {key} and {options[key]} both set {key}: drop one")
+
+
 def _device(device: str | None) -> None:
     if device is not None:
         check_device(device, f"--device {device}", "use --device cpu")
@@ -80,6 +97,7 @@ def cli() -> None:
       trainer eval runs/NAME                # per-object success table
       trainer report runs/*                 # mean +- std tables and plots over seeds
       trainer play runs/NAME --object 013_apple --video out.mp4
+      trainer config [KEY...]               # every config key: default, range, the paper's
 
     Objects come from geomprep's output (``data/processed``); build them first with
     ``geomprep build-all``.
@@ -87,7 +105,12 @@ def cli() -> None:
 
 
 def _config_options(func):  # noqa: ANN001, ANN202
-    """Options shared by every command that builds environments."""
+    """Options shared by every command that reads a config (``--set``: ``_sets``)."""
+    func = click.option(
+        "--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE",
+        help="Set one config key as if the --config file said it (repeatable; the value as "
+        "TOML writes it: 12, 0.5, true, hulls, [1, 2]). trainer config lists the keys.",
+    )(func)
     func = click.option(
         "--config", "config_path", type=click.Path(path_type=Path, dir_okay=False),
         help="TOML file overriding any environment knob ([physics], [robot], [reward], ...).",
@@ -115,7 +138,7 @@ def _config_options(func):  # noqa: ANN001, ANN202
 @_config_options
 def demo(
     objects: str, trials: int, robot: str, seed: int, family_spec: str, video: Path,
-    config_path: Path | None, data_dir: Path | None,
+    config_path: Path | None, sets: tuple[str, ...], data_dir: Path | None,
 ) -> None:
     """Scripted grasps (by default the top grasp: approach from above, close, lift): proof that
     the hand can grasp.
@@ -126,6 +149,7 @@ def demo(
     """
     _at_least("--trials", trials, 1)
     _at_least("--seed", seed, 0)
+    given = _sets(sets)
     from trainer.grasps import family_variants
     from trainer.grasps.families import best_variants
     from trainer.objects import resolve_names
@@ -135,7 +159,7 @@ def demo(
         family_name, _, variant_name = family_spec.partition(":")
         variant = family_variants(family_name, [variant_name or "base"])[variant_name or "base"]
     names = resolve_names(objects, load_env_config(
-        config_path, **({"data_dir": data_dir} if data_dir else {})).data_dir)
+        config_path, given, **({"data_dir": data_dir} if data_dir else {})).data_dir)
     batches = {family_spec: (variant, names)} if variant is not None else best_variants(names)
     for spec, (variant, mine) in batches.items():
         if len(batches) > 1:
@@ -143,12 +167,12 @@ def demo(
         clip = video
         if len(batches) > 1 and str(video) not in ("", "."):
             clip = video.with_name(f"{video.stem}-{spec.replace(':', '-')}{video.suffix}")
-        _demo_batch(mine, variant, trials, robot, seed, clip, config_path, data_dir)
+        _demo_batch(mine, variant, trials, robot, seed, clip, config_path, given, data_dir)
 
 
 def _demo_batch(
     names: list[str], variant: Variant, trials: int, robot: str, seed: int, video: Path,
-    config_path: Path | None, data_dir: Path | None,
+    config_path: Path | None, sets: dict, data_dir: Path | None,
 ) -> None:
     """One batch of ``trainer demo``: ``trials`` per object of ``variant``, printed, and the
     first trial of each object (up to four) filmed into ``video``."""
@@ -157,7 +181,8 @@ def _demo_batch(
     from trainer.tasks import make_env
 
     overrides = {"data_dir": data_dir} if data_dir else {}
-    cfg = load_env_config(config_path, task="lift", context="none", **overrides, **variant.env)
+    cfg = load_env_config(config_path, sets, task="lift", context="none", **overrides,
+                          **variant.env)
     check_device(cfg.device, f"device {cfg.device!r} in {config_path}", 'set device = "cpu"')
     cfg = dataclasses.replace(
         cfg, num_envs=trials * len(names), objects=",".join(names),
@@ -217,7 +242,7 @@ def _demo_batch(
 def grasp(
     family_name: str, variants: str, grid: bool, objects: str | None, trials: int, seed: int,
     backend: str | None, device: str | None, hold_tips: int | None, out: Path | None,
-    config_path: Path | None, data_dir: Path | None,
+    config_path: Path | None, sets: tuple[str, ...], data_dir: Path | None,
 ) -> None:
     """Scripted grasp trials, each classified: lifted (the task's success), dropped (rose 2 cm,
     not lifted), no grip (never rose 2 cm), pushed (never rose, knocked > 2 cm sideways first).
@@ -231,9 +256,11 @@ def grasp(
     _device(device)
     if hold_tips is not None:
         _at_least("--hold-tips", hold_tips, 0)
+    given = _sets(sets)
     import time
 
     from trainer.grasps import family, family_variants, measure
+    from trainer.grasps.families import merge_overrides
     from trainer.grasps.outcomes import write_rows
 
     fam = family(family_name)
@@ -244,6 +271,11 @@ def grasp(
     env = {k: v for k, v in {"data_dir": data_dir, "backend": backend, "device": device,
                              "reward": None if hold_tips is None else {"hold_tips": hold_tips},
                              }.items() if v is not None}
+    _one_source(given, {key: option for key, option, value in (
+        ("data_dir", "--data-dir", data_dir), ("backend", "--backend", backend),
+        ("device", "--device", device), ("reward.hold_tips", "--hold-tips", hold_tips),
+    ) if value is not None})
+    env = merge_overrides(dotted_overrides(given), env)
     rows: list[dict] = []
     for name, variant in chosen.items():
         start = time.perf_counter()
@@ -286,7 +318,8 @@ def grasp(
 @_config_options
 def grasp_search(
     objects: str, population: int, trials: int, iterations: int, elite: int, seed: int,
-    spread: float, refine: bool, out: Path | None, config_path: Path | None, data_dir: Path | None,
+    spread: float, refine: bool, out: Path | None, config_path: Path | None,
+    sets: tuple[str, ...], data_dir: Path | None,
 ) -> None:
     """Search a grasp for each object (the cross-entropy method over a keyframe grasp's 19
     parameters, scored on MuJoCo rollouts of the lift task, starting from the top grasp) and
@@ -307,6 +340,7 @@ def grasp_search(
         raise TrainerError(f"--elite {elite}: must be <= --population {population}")
     if not spread > 0:
         raise TrainerError(f"--spread {spread}: must be > 0")
+    given = _sets(sets)
     import datetime
     import json
 
@@ -314,13 +348,16 @@ def grasp_search(
 
     from geomgrasp.files import atomic_path
     from trainer.grasps import searched
+    from trainer.grasps.families import merge_overrides
     from trainer.grasps.keyframes import PARAMS, top_grasp_theta
     from trainer.grasps.search import cem
     from trainer.objects import resolve_names
     from trainer.tasks import make_env
 
-    # The environment part of the config file, as written (read by the one TOML reader).
-    config = {k: v for k, v in read_config_toml(config_path).items()
+    # The environment part of the config file, as written (read by the one TOML reader), with
+    # the --set values in it.
+    written = merge_overrides(read_config_toml(config_path), dotted_overrides(given))
+    config = {k: v for k, v in written.items()
               if k not in ("ppo", "run", "objects", "num_envs", "data_dir")}
     data = searched.load_searched(out) if out is not None else {"config": {}, "objects": {}}
     if data["objects"] and data["config"] != config:
@@ -329,8 +366,8 @@ def grasp_search(
             f"that --config, or --out a new file"
         )
     overrides = {"data_dir": data_dir} if data_dir else {}
-    cfg = load_env_config(config_path, task="lift", context="none", representation="com",
-                          **overrides)
+    cfg = load_env_config(config_path, given, task="lift", context="none",
+                          representation="com", **overrides)
     check_device(cfg.device, f"device {cfg.device!r} in {config_path}", 'set device = "cpu"')
     names = resolve_names(objects, cfg.data_dir)
     key = searched.hand_key(cfg)
@@ -433,12 +470,14 @@ def run(
     num_envs: int | None, steps: int | None, minutes: float | None, seed: int | None,
     device: str | None,
     run_dir: Path | None, resume_dir: Path | None, overwrite: bool, init_agent: Path | None,
-    compile_env: bool | None, config_path: Path | None, data_dir: Path | None,
+    compile_env: bool | None, config_path: Path | None, sets: tuple[str, ...],
+    data_dir: Path | None,
 ) -> None:
     """Train a grasping policy with PPO (TorchRL collector, GAE, ClipPPOLoss, Adam).
 
     The run directory gets config.json (everything resolved), metrics.csv and tb/ (TensorBoard),
-    and checkpoints/. Options override the --config TOML ([ppo], [run] and env sections).
+    and checkpoints/. Options override the --config TOML ([ppo], [run] and env sections);
+    --set section.key=value sets any key of it (trainer config lists them).
     """
     if resume_dir is not None:
         # A resumed run continues bit for bit with its own config.json: an option that would
@@ -448,7 +487,8 @@ def run(
             "--task": task, "--bin-objects": bin_objects, "--context": context,
             "--backend": backend, "--repr": representation, "--reward": reward, "--robot": robot,
             "--objects": objects, "--num-envs": num_envs, "--seed": seed, "--device": device,
-            "--run-dir": run_dir, "--config": config_path, "--data-dir": data_dir,
+            "--run-dir": run_dir, "--config": config_path, "--set": sets or None,
+            "--data-dir": data_dir,
             "--overwrite": overwrite or None, "--init-agent": init_agent,
             compile_option: compile_env,
         }
@@ -476,7 +516,13 @@ def run(
             "init_agent": None if init_agent is None else str(init_agent),
         }.items() if v is not None
     }
-    cfg = load_train_config(config_path, env=env, run=run_over, names=RUN_OPTIONS)
+    given = _sets(sets, training=True)
+    chosen = {f"run.{k}": RUN_OPTIONS[k] for k in run_over}  # key as --set names it -> option
+    for k, v in dotted_overrides(env).items():
+        keys = [f"{k}.{f}" for f in v] if isinstance(v, dict) else [k]
+        chosen.update({key: RUN_OPTIONS[key] for key in keys})
+    _one_source(given, chosen)
+    cfg = load_train_config(config_path, env=env, run=run_over, names=RUN_OPTIONS, sets=given)
     where = f"--device {device}" if device else f"device {cfg.env.device!r} in {config_path}"
     check_device(cfg.env.device, where, "use --device cpu")
     check_backend(cfg.env.backend)
@@ -667,6 +713,33 @@ def play(
     click.echo(f"{names[0]}: success {int(success[ids].sum())}/{len(ids)}, "
                f"{int(length[ids].max())} steps; video: {video} ({len(filmed)} episodes, "
                f"{shown} of them successes)")
+
+
+@cli.command("config")
+@click.argument("keys", nargs=-1)
+@click.option("--paper", "paper_only", is_flag=True, help="Only the keys the paper states.")
+@click.option("--markdown", type=click.Path(path_type=Path, dir_okay=False), default=None,
+              help="Write every key as a Markdown page to this file (docs/config.md) instead.")
+def config_cmd(keys: tuple[str, ...], paper_only: bool, markdown: Path | None) -> None:
+    """Every config key: its default, the values it accepts, what the paper states ("ours":
+    nothing, a key of this project) and what it does, section by section.
+
+    KEYS: only the keys whose name contains one of them, or a section (reward, ppo, run).
+    Set a key in a --config TOML file (in its [section]) or with --set section.key=value.
+    """
+    from trainer.config_keys import listing, select
+    from trainer.config_keys import markdown as page
+
+    if markdown is not None:
+        if keys or paper_only:
+            raise TrainerError("--markdown writes every key: drop the KEYS and --paper")
+        from geomgrasp.files import atomic_path
+
+        with atomic_path(markdown) as tmp:
+            tmp.write_text(page(), encoding="utf-8")
+        click.echo(f"written: {markdown}")
+        return
+    click.echo(listing(select(keys, paper_only)), nl=False)
 
 
 def format_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,

@@ -7,25 +7,39 @@
     [physics]
     substeps = 12
 
+and ``--set section.key=value`` any one from the command line (``trainer.config_keys``).
+
+Each key declares its default and the values it accepts (``bounded``), and, for the keys of the
+paper's method, what the paper states (``bounded(..., paper=...)``); a key without it is this
+project's own. Its docstring says in a few lines what it does and links the results/ folders
+that measured it; the longer history is in results/config-evidence.md. ``trainer config`` lists
+every key and writes docs/config.md.
+
 Physics choices (documented here because they decide whether a grasp holds): MuJoCo's
 ``implicitfast`` integrator, elliptic friction cones with ``condim = 4`` (torsional friction
 keeps a pinched object from spinning out), sliding friction 1.0 for fingers and objects and 0.8
 for the table, the arm and hand gravity-compensated (the arm's PD loop tracks targets rather than
-fighting its own weight), and hand position servos stronger than the real SIH's 0.75 N·m.
+fighting its own weight), and hand position servos limited to the real SIH's 0.75 N·m.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
 from geomgrasp import materials
-from geomgrasp.config_schema import Checked, bounded, build_dataclass, field_error, read_toml
+from geomgrasp.config_schema import (
+    Checked,
+    bounded,
+    build_dataclass,
+    field_error,
+    read_toml,
+    toml_value,
+)
 from geomgrasp.materials import ContactMaterial
 from trainer.errors import TrainerError
 
@@ -65,41 +79,43 @@ class _Checked(Checked):
 class PhysicsConfig(_Checked):
     """Simulation timing and contact parameters."""
 
-    control_hz: float = bounded(30.0, gt=0)
+    control_hz: float = bounded(30.0, gt=0, paper="30")
+    """Actions per second (Hz): how often the policy acts and the arm and hand targets change."""
     substeps: int = bounded(10, ge=1)
-    """Physics steps per action; the timestep is 1 / (control_hz * substeps) s."""
+    """Physics steps per action; the timestep is 1 / (control_hz * substeps) s. Fewer: faster,
+    until grasps fail (results/substeps-2026-11-26/)."""
     iterations: int = bounded(20, ge=1)
+    """Iterations of MuJoCo's constraint solver per physics step (``opt.iterations``)."""
     ls_iterations: int = bounded(10, ge=0)
+    """Line-search iterations of each solver iteration (``opt.ls_iterations``)."""
     impratio: float = bounded(1.0, gt=0)
     """Frictional-to-normal constraint impedance ratio; above 1 makes friction stiffer (less
-    creep of a held object), as MuJoCo recommends with elliptic cones."""
+    creep of a held object), as MuJoCo recommends with elliptic cones
+    (results/graspability-drives-2026-11-25/, results/hold-at-slip-2026-11-26/)."""
     noslip_iterations: int = bounded(5, ge=0)
-    """Passes of MuJoCo's no-slip solver after the main one (0: off). It removes the creep of
-    the soft frictional contacts, which lets a pinched dice or knife slide out of the fingertips
-    (results/scripted-table1: a scripted pinch lifts the dice 0 -> 8 of 10 with 5) and a held
-    cube slide 0.5-5.7 mm/s under its own weight (0.002-0.17 mm/s with 5;
-    results/graspability-drives-2026-11-25/). Costs ~10 % of the lift task's env steps/s and
-    ~25 % of the bin's on the CPU (docs/benchmarks.md)."""
+    """Passes of MuJoCo's no-slip solver after the main one (0: off): removes the creep of soft
+    frictional contacts that lets pinched or held objects slide out; costs ~10 % (lift) to
+    ~25 % (bin) of the CPU's env steps/s (results/noslip-iterations-2026-11-26/)."""
     sleep: bool = False
-    """CPU backend: let objects at rest sleep (MuJoCo's sleeping islands: a resting object leaves
-    the collision and constraint pipeline until something touches it). The bin's physics runs
-    up to ~2x faster (``bench/env_throughput.py --sleep``). A sleeping island is not part of
-    MuJoCo's state vector: a checkpoint restores every object awake, so a resumed run does not
-    continue bit for bit, and the backend keeps one MjData per env."""
+    """CPU backend: let objects at rest sleep (MuJoCo's sleeping islands): the bin up to ~2x
+    faster (``bench/env_throughput.py --sleep``; results/cpu-bin5-six/); a resumed run does not
+    continue bit for bit (a checkpoint restores every object awake)."""
     table_size: tuple[float, float, float] = bounded((0.4, 0.4, 0.02), gt=0)
     """Half-sizes of the table top (m); its top surface is at z = 0."""
     # The contact materials (``materials``; defaults: ``geomgrasp.materials.DEFAULTS``).
     table_friction: tuple[float, float, float] = bounded(materials.TABLE.friction, ge=0)
     """Sliding, torsional, rolling friction of the table, the bin and the arm."""
     finger_friction: tuple[float, float, float] = bounded(materials.HAND.friction, ge=0)
-    """Friction of the hand."""
+    """Sliding, torsional, rolling friction of the hand."""
     condim: int = bounded(materials.HAND.condim, choices=(1, 3, 4, 6))
-    """Contact dimensionality of the floor, table, bin, arm and hand."""
+    """Contact dimensionality of the floor, table, bin, arm and hand (4: torsional friction
+    too, which keeps a pinched object from spinning out)."""
     solref: tuple[float, float] = materials.HAND.solref
+    """Contact stiffness of the hand's geoms (MuJoCo's solref: time constant, damping ratio)."""
     solimp: tuple[float, float, float, float, float] = materials.HAND.solimp
-    """Contact softness of the hand's geoms. The objects' contact parameters (friction, condim,
-    solref, solimp) are geomprep's (``[mjcf]`` in its config), written into each object's MJCF and
-    used as they are, so geomprep's settle check and training see the same contacts."""
+    """Contact impedance of the hand's geoms (MuJoCo's solimp). The objects' contact parameters
+    are geomprep's (``[mjcf]`` in its config), written into each object's MJCF, so geomprep's
+    settle check and training see the same contacts."""
 
     def materials(self) -> dict[str, ContactMaterial]:
         """The contact material of each group of the scene's fixtures and robot, from these
@@ -121,56 +137,50 @@ class PhysicsConfig(_Checked):
 class RobotConfig(_Checked):
     """Arm and hand actuation, and how an action moves them."""
 
-    kind: str = bounded("ur5e", choices=ROBOTS)
+    kind: str = bounded("ur5e", choices=ROBOTS, paper="ur5e")
     """``ur5e`` (arm + hand, Jacobian-transpose control) or ``floating`` (hand on a 6-DoF mocap)."""
     base_pos: tuple[float, float, float] = (0.26, 0.63, -0.23)
     """UR5e base position (m; the table top centre is the origin): beside the table, below its
     top, where the authors' home configuration puts the hand above the table centre."""
     arm_kp: float = bounded(1500.0, ge=0)
+    """Stiffness of the UR5e's joint position servos (N·m/rad)."""
     arm_damping: float = bounded(120.0, ge=0)
+    """Damping of the UR5e's joint position servos (N·m·s/rad)."""
     arm_armature: float = bounded(0.2, ge=0)
+    """Armature (rotor inertia) of the UR5e's joints (kg·m²)."""
     hand_kp: float = bounded(20.0, ge=0)
+    """Stiffness of the hand's position servos (N·m/rad)."""
     hand_forcerange: float = bounded(0.75, gt=0)
-    """Hand servo torque limit (N·m): the real SIH servos' 0.75 N·m. With the URDF's joint
-    damping and every joint driven it lifts the cube, the apple and the cups 10/10 with the top
-    grasp (results/graspability-drives-2026-11-25/); the capsule hand used 5."""
+    """Hand servo torque limit (N·m): the real SIH servos' 0.75 N·m (the capsule hand used 5)
+    (results/graspability-drives-2026-11-25/)."""
     hand_geometry: str = bounded("hulls", choices=HAND_GEOMETRIES)
-    """Collision shapes of the 11 finger and thumb links: ``capsules`` (our estimate of the link
-    sizes) or ``hulls`` (the convex hulls of the published link meshes,
-    ``trainer/robots/sih_hulls.json``). The palm is a box either way."""
+    """Collision shapes of the 11 finger and thumb links: ``capsules`` (our estimate) or
+    ``hulls`` (convex hulls of the published link meshes, ``trainer/robots/sih_hulls.json``);
+    the palm is a box either way (results/graspability-2026-11-25/)."""
     hand_drive: str = bounded("all-joints", choices=HAND_DRIVES)
-    """How the 5 servo commands reach the 11 joints: ``equalities`` (5 position actuators on the
-    leading joints, the 6 others following through soft 1:1 equality constraints, the dexterity
-    MJCF's scheme) or ``all-joints`` (11 position actuators, each follower given its leader's
-    target, with no equality: the authors' Isaac Gym scheme, every joint a drive with the URDF's
-    effort limit). Each actuator has ``hand_kp`` and ``hand_forcerange``."""
+    """How the 5 servo commands reach the 11 joints: ``equalities`` (5 actuators, followers on
+    soft 1:1 equalities) or ``all-joints`` (11 actuators, each follower given its leader's
+    target: the authors' Isaac Gym scheme) (results/graspability-drives-2026-11-25/)."""
     hand_joint_damping: float = bounded(0.1, ge=0)
-    """Damping of the 11 hand joints (N·m·s/rad). 1.0 is the dexterity MJCF's class default; the
-    authors' URDF has 0.1. At a 0.75 N·m servo limit, 1.0 caps a finger's closing speed at
-    0.75 rad/s (issue 33)."""
+    """Damping of the 11 hand joints (N·m·s/rad): the authors' URDF's 0.1 (the dexterity MJCF
+    has 1.0, which caps a finger's closing speed at 0.75 rad/s; issue 33)."""
     hand_action: str = bounded("absolute", choices=HAND_ACTIONS)
-    """How the hand's 5 action values command its servos: ``absolute`` (a target between open,
-    -1, and closed, +1, every action; at the initial action std of 0.6 a finger's target jumps
-    by up to ~0.47 rad per action) or ``relative`` (each action moves the targets by
-    ``hand_relative_step`` times its value, clamped to the range, as the authors' Isaac Gym task
-    does; 0 holds them). The scripted grasps command absolute targets."""
+    """How the 5 hand actions command the servos: ``absolute`` (a target from open, -1, to
+    closed, +1) or ``relative`` (targets move by ``hand_relative_step`` times the action, the
+    authors' Isaac Gym task) (results/cpu-dice-hand-action-2026-11-25/)."""
     hand_relative_step: float = bounded(0.167, gt=0)
     """``relative``: target change per action at |a| = 1 (rad; +1 toward closed): 5 rad/s at
-    the 30 Hz control rate, the authors' a * dt * 5; a finger's 1.571 rad range in ~10
-    actions."""
+    30 Hz, the authors' a * dt * 5."""
     home_hand_height: float = bounded(0.28, gt=0)
-    """Palm keypoint height above the table at reset (m). The open hand reaches ~0.10 m below
-    it: building a task warns when the hand at home touches an object in some of its settled
-    initial states turned to some yaw (results/home-contact-2026-11-26/: at 0.14 the toy
-    airplane in 64 of 64, the ball 56, the Rubik's cube 45, the apple 43)."""
+    """Palm keypoint height above the table at reset (m); building a task warns when the open
+    hand at home touches an object in some settled initial state
+    (results/home-contact-2026-11-26/)."""
     home_above_objects: bool = False
-    """Raise the home height per settled initial state, from ``home_hand_height`` in 1 cm steps
-    (at most 0.3 m more), to the lowest at which the open hand touches none of the state's
-    objects at any of 16 yaws (MuJoCo's collision detection; a reset turns the state by a random
-    yaw). A low start then never begins with the hand on a tall object, and a lying one keeps
-    the low start."""
+    """Raise the home height per settled initial state (1 cm steps, at most 0.3 m more) to the
+    lowest at which the open hand touches none of its objects at 16 yaws
+    (results/home-contact-2026-11-26/, results/cpu-home-2026-11-26/)."""
     pos_step: float = bounded(0.02, ge=0)
-    """Hand translation per action at |a| = 1 (m)."""
+    """Hand translation per action at |a| = 1 (m) (results/cpu-knife-arms-2026-11-26/)."""
     rot_step: float = bounded(0.1, ge=0)
     """Hand rotation per action at |a| = 1 (rad)."""
     jt_iterations: int = bounded(2, ge=1)
@@ -191,70 +201,54 @@ class RewardConfig(_Checked):
     contact) and their weights are one table, ``trainer.tasks.terms.reward_terms``; each is
     logged as ``reward_<term>``."""
 
-    kind: str = bounded("sdf", choices=REWARDS)
-    """The contact term's variant: ``sdf`` (d: fingertip distances to the surface), ``com`` (to
-    the centre of mass) or ``none`` (no contact term: 0): the paper's reward and its ablations.
-    ``sdf-thumb`` (not the paper's; an option for the flat objects, 2026-11-26): d is the thumb
-    pad's distance plus the nearest finger pad's, so a thumb-finger pinch earns the term's
-    maximum and the other three fingers are not drawn onto the object
-    (results/reward-balance-2026-11-26/: on a flat object the paper's term pays a five-pad rest
-    on its top face 2.7-3.9x per action what it pays a pinch)."""
+    kind: str = bounded("sdf", choices=REWARDS, paper="sdf (ablations: com, none)")
+    """The contact term's d: ``sdf`` (fingertip distances to the surface), ``com`` (to the
+    centre of mass), ``none`` (no term), or ours, ``sdf-thumb`` (the thumb pad's plus the
+    nearest finger pad's distance: pays a pinch) (results/reward-balance-2026-11-26/)."""
     contact_shaping: str = bounded("per-step", choices=CONTACT_SHAPINGS)
-    """How the contact term is paid. ``per-step`` (the default, the paper): its value every
-    step, so a hand that rests with its pads on the object earns it for as long as it rests.
-    ``difference`` (not the paper's; an option, 2026-11-27): its change since the previous step
-    (the first step after a reset: against the reset state), so approaching the object pays,
-    leaving pays it back, resting pays 0, and an episode's contact terms sum to the closeness at
-    its end minus at its start. The per-step term's rest (pads on the object, thumb open, no
-    lift) is where the tuna can, plate, knife and a dice seed end on the CPU
-    (results/cpu-tuna-plate-2026-11-26/); this removes what pays for it, leaving the lift and
-    success terms to choose the policy (a potential-based shaping with discount 1)."""
-    h_bar: float = bounded(0.2, gt=0)
-    c1: float = 0.5
+    """How the contact term is paid: ``per-step`` (its value every step, the paper) or
+    ``difference`` (its change since the previous step: approaching pays, resting pays 0)
+    (results/cpu-contact-difference-2026-11-27/, results/config-evidence.md)."""
+    h_bar: float = bounded(0.2, gt=0, paper="0.2")
+    """Lift target (m): success is the target lifted this far (``dh >= h_bar``); evaluation
+    always uses it."""
+    c1: float = bounded(0.5, paper="0.5")
     """Weight of the lift term."""
-    c2: float = 5000.0
+    c2: float = bounded(5000.0, paper="5000")
     """Weight of the success term (the bonus)."""
-    c3: float = 1.0
+    c3: float = bounded(1.0, paper="1 (ablation: 0)")
     """Weight of the contact term."""
-    eps_h: float = bounded(0.02, gt=0)
-    eps_sdf: float = bounded(0.025, gt=0)
+    eps_h: float = bounded(0.02, gt=0, paper="0.02")
+    """The lift term's epsilon (m): its largest value is c1 / eps_h, at dh = h_bar."""
+    eps_sdf: float = bounded(0.025, gt=0, paper="0.025")
+    """The contact term's epsilon (m): its largest value is c3 / eps_sdf, at d = 0."""
     h_bar_start: float = 0.2
-    """Lift-height curriculum (training only): the target h_bar of the reward and of episode
-    success starts here (m) and rises by ``h_bar_increment`` whenever the running training
-    success at the current target reaches ``h_bar_promote``, until it is ``h_bar``. Equal to
-    ``h_bar`` (the default, the paper): no curriculum. Evaluation always uses ``h_bar``."""
+    """Lift-height curriculum (training only): the lift target starts here (m) and rises by
+    ``h_bar_increment`` whenever the running success at it reaches ``h_bar_promote``, up to
+    ``h_bar``. Equal to ``h_bar`` (the default, the paper): no curriculum."""
     h_bar_increment: float = bounded(0.02, gt=0)
+    """Curriculum: how much the lift target rises at a promotion (m)."""
     h_bar_promote: float = bounded(0.5, ge=0, le=1)
+    """Curriculum: the running success at the current target that promotes it
+    (results/cpu-knife-promote-2026-11-28/)."""
     curriculum_per_object: bool = False
-    """The curriculum keeps one lift target per target object, each promoted on that object's
-    own running success (over ``run.success_window`` / the number of objects episodes, at
-    least 16), so the objects lifted early climb to ``h_bar`` instead of waiting at a target
-    the hard ones hold down. False: one target for all, promoted on the success of all."""
+    """One curriculum target per target object, each promoted on its own running success
+    (over ``run.success_window`` / the number of objects episodes, at least 16); false: one
+    target for all (results/cpu-table1-together-2026-11-26/, results/cpu-bin5-perobject/)."""
     hold_tips: int = bounded(2, ge=0, le=5)
-    """Success (the bonus c2, the episode's end, every success rate) is the target lifted by
-    h_bar *and held*: at least this many fingertip pads within ``hold_distance`` of its surface
-    at that step. Without it a policy that bats the object up through h_bar succeeds, the hand
-    20 cm away (learned for the ball and the apple). 0: any rise by h_bar counts (the paper's
-    words, "raised by h_bar", do not say)."""
+    """Success needs the target lifted *and held*: at least this many fingertip pads within
+    ``hold_distance`` of it; 0: any rise by h_bar counts (the paper's words do not say)
+    (results/cpu-table1/)."""
     hold_distance: float = bounded(0.02, gt=0)
     """Fingertip pad to the target's surface (m, from its SDF) that counts as touching it for
     ``hold_tips``; the scripted grasps' lifts: 99 % have two pads within 2 cm."""
     lift_clearance: float = bounded(0.0, ge=0)
-    """The lift Δh (the lift term, success, the curriculum's rates, ``lift_height``) is the
-    target's centre's rise once its lowest surface point (over its 512 surface samples, ~5 mm
-    apart on a Table I object) has risen this far (m) since the episode's start, and that
-    lowest point's rise until then: tipping an elongated object raises its centre but not its
-    lowest point, so a tip is paid and counted as no lift. Pushing a wing tips the toy
-    airplane 3 cm at its centre, the untrained policy's "lifts"; the tuna can's policy held it
-    tipped 1.7 cm for the lift term (results/cpu-lift-clearance-2026-11-26/). 0 (the default,
-    the paper): the centre's rise always. Success at a target >= this value is the same as
-    requiring both rises; at the task's 0.2 m a held Table I object is off the table anyway."""
+    """dh is the centre's rise only once the target's lowest surface point has risen this far
+    (m), that point's rise until then, so tipping an object is no lift; 0 (the default, the
+    paper): the centre's rise (results/cpu-lift-clearance-2026-11-26/)."""
     hold_from: float = bounded(0.0, ge=0)
-    """Training only: the hold condition applies to lift targets of at least this height (m);
-    at a lower curriculum target any rise succeeds. 0 (the default): always held. Tried at
-    0.1 on the CPU (results/cpu-table1/bbox-holdfrom/): objects flicked up to 9 cm, then
-    stopped at the first held target; no better at 0.2 m than the hold from the start. At most
-    ``h_bar``, so that evaluation, always at ``h_bar``, counts held lifts only."""
+    """Training only: ``hold_tips`` applies to curriculum targets of at least this height (m);
+    below it any rise succeeds. 0: always. At most ``h_bar`` (results/cpu-table1/)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -286,7 +280,9 @@ class InitConfig(_Checked):
     xy_range: float = bounded(0.08, ge=0)
     """Drop position is uniform in a square of this half-size around the table centre (m)."""
     settle_seconds: float = bounded(1.5, ge=0)
+    """Simulated time a dropped object settles before its pose is banked (s; lift task)."""
     seed: int = bounded(0, ge=0)
+    """Seed of the drops (with a digest of the objects): the banks, not the run's seed."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -302,23 +298,25 @@ class BinConfig(_Checked):
     """The bin-picking task (``trainer/tasks/bin.py``): a bin of a floor and four walls at the
     table centre, ``num_objects`` objects dropped into it, one of them the target."""
 
-    num_objects: int = bounded(5, ge=1)
-    """Objects in the bin (the paper: 5 and 10), drawn without replacement from the object set."""
+    num_objects: int = bounded(5, ge=1, paper="5 and 10")
+    """Objects in the bin, drawn without replacement from the object set."""
     layouts: int = bounded(16, ge=1)
-    """Distinct bins (object draws) per run. Each is one compiled model on the CPU backend and
-    the envs share them round-robin: a 5-YCB-object model steps in ~1.5 MiB (its visual
-    meshes and textures, ~30 MiB, are only loaded for videos) and compiles in ~0.1 s, where
-    one model per env would mean 256 of them at 256 envs (bench/env_throughput.py --memory)."""
+    """Distinct bins (object draws) per run, each one compiled model on the CPU backend that
+    envs share round-robin (~1.5 MiB each: one per env would mean 256 at 256 envs;
+    ``bench/env_throughput.py --memory``)."""
     bank_size: int = bounded(16, ge=1)
     """Settled clutter states per layout (each reset draws one, with a random quarter turn)."""
     inner_half_size: tuple[float, float] = bounded((0.2, 0.2), gt=0)
     """Half the inside length and width of the bin (m): 40 cm square holds 10 YCB objects,
     plates (26 cm) included, without most drops spilling over the walls."""
     wall_height: float = bounded(0.06, gt=0)
+    """Height of the bin's walls above its floor (m)."""
     wall_thickness: float = bounded(0.01, gt=0)
+    """Thickness of the bin's walls (m)."""
     drop_spacing: float = bounded(0.02, ge=0)
     """Vertical gap between the objects at release (m): they are dropped one above the other."""
     settle_seconds: float = bounded(3.0, gt=0)
+    """Simulated time the dropped objects settle before a clutter state is banked (s)."""
     max_penetration: float = bounded(0.005, gt=0)
     """A settled state with two objects (or an object and the bin) interpenetrating deeper than
     this (m) is dropped again."""
@@ -344,43 +342,50 @@ class WarpConfig(_Checked):
 class EnvConfig(_Checked):
     """A grasping task: the scene, the robot, the objects and how the policy sees them."""
 
-    num_envs: int = bounded(64, ge=1)
-    task: str = bounded("lift", choices=tuple(TASKS))
+    num_envs: int = bounded(64, ge=1, paper="16384")
+    """Parallel environments (simulated side by side; each training rollout steps them all)."""
+    task: str = bounded("lift", choices=tuple(TASKS), paper="lift and bin")
     """``lift``: one object on the table, lift it by h_bar. ``bin``: lift a given target out of
     a bin of ``[bin] num_objects`` objects."""
-    representation: str = bounded("", choices=REPRESENTATIONS)
+    representation: str = bounded(
+        "", choices=REPRESENTATIONS, paper="each of the seven (lift); bbox (bin)"
+    )
     """How the policy sees the object (the target in ``bin``); empty: the task's default
     (``TASKS``: sq for lift, bbox for bin)."""
     context: str = bounded("none", choices=CONTEXTS)
     """``bbox``: the bin task also observes every other object's bounding box (pose + extents,
     with a mask), read by a permutation-invariant encoder; ``none``: the paper (target only)."""
     observe_fingertips: bool = False
-    """Append the 5 fingertip pad positions (world frame, m; thumb, index, middle, ring, little)
-    to ``proprio`` (20 -> 35 values), as the authors' Isaac Gym task observes them; default off
-    (the paper's proprioception: palm pose and joint angles)."""
+    """Append the 5 fingertip pad positions (world frame, m) to ``proprio`` (20 -> 35 values),
+    as the authors' Isaac Gym task observes them; false: the paper's proprioception (palm pose
+    and joint angles) (results/cpu-knife-arms-2026-11-26/)."""
     observe_hand_targets: bool = False
-    """Append the hand's 5 servo targets (-1 open, +1 closed) to ``proprio`` (after the
-    fingertips if observed): with relative hand actions the targets are controller state that
-    the joint angles do not show (a blocked finger's angle stops, its target does not)."""
+    """Append the hand's 5 servo targets (-1 open, +1 closed) to ``proprio``: with relative hand
+    actions the targets are controller state the joint angles do not show
+    (results/cpu-dice-hand-action-2026-11-25/)."""
     backend: str = bounded("cpu", choices=BACKENDS)
-    objects: str = "builtin"
+    """Physics backend (``BACKENDS``): ``cpu`` (MuJoCo C on a thread pool) or ``warp`` (MuJoCo
+    Warp; ``pip install -e ".[gpu]"``)."""
+    objects: str = bounded("builtin", paper="ycb (the 78 YCB objects)")
     """Object set: ``builtin``, ``ycb``, ``all``, or a comma list of names."""
-    max_steps: int = bounded(300, ge=1)
+    max_steps: int = bounded(300, ge=1, paper="300")
+    """Actions per episode at most (an episode also ends on success or a fall)."""
     fall_height: float = -0.05
     """The object counts as off the table below this height (m, table top at 0)."""
     data_dir: Path = Path("data")
+    """geomprep's data directory (the built objects are in its ``processed/``)."""
     device: str = "cpu"
+    """Torch device of the networks and task tensors (and of MuJoCo Warp): ``cpu`` or
+    ``cuda[:N]``."""
     nthread: int = bounded(0, ge=0)
     """Simulation threads; 0 = all cores."""
     sdf_dtype: str = bounded("float16", choices=("float16", "float32"))
-    """Storage of the SDF grids (``float16`` or ``float32``): float16 moves a looked-up distance
-    by <= 10 um within 2 cm of a surface and halves the memory (78 objects at 200^3: 2.50 GB
-    instead of 4.99 GB) and the lookup's memory traffic."""
+    """Storage of the SDF grids: float16 moves a looked-up distance by <= 10 um within 2 cm of a
+    surface and halves the memory (78 objects at 200^3: 2.50 GB instead of 4.99 GB)."""
     compile: bool = False
-    """Compile the per-step task computations (kinematics, observations, reward) with
-    ``torch.compile``: about 2x less torch time per step at small env counts, after a
-    one-off compilation of ~30-60 s per representation (cached on disk). Needs a C++ compiler
-    on CPU."""
+    """``torch.compile`` the per-step task computations (kinematics, observations, reward):
+    about 2x less torch time per step at small env counts, after ~30-60 s of compilation per
+    representation (cached on disk). Needs a C++ compiler on CPU."""
     physics: PhysicsConfig = field(default_factory=PhysicsConfig)
     robot: RobotConfig = field(default_factory=RobotConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
@@ -410,66 +415,59 @@ class PPOConfig(_Checked):
     is cut into at most ``minibatches`` minibatches of at least ``min_minibatch`` frames (tiny
     minibatches would make the update cost, not the simulation, the bottleneck on a CPU)."""
 
-    frames_per_env: int = bounded(32, ge=1)
-    """Steps of every env per rollout (one PPO iteration). 16 on the knife alone (twice the
-    iterations per env step): 0/50 against the baseline's 10/50 and 13/50 (two seeds) at 1.95 M
-    env steps (results/cpu-iterations-2026-11-27/)."""
-    epochs: int = bounded(5, ge=1)
-    minibatches: int = bounded(16, ge=1)
+    frames_per_env: int = bounded(32, ge=1, paper="32")
+    """Steps of every env per rollout (one PPO iteration) (results/cpu-iterations-2026-11-27/)."""
+    epochs: int = bounded(5, ge=1, paper="5")
+    """Passes over each rollout in the update."""
+    minibatches: int = bounded(16, ge=1, paper="16 (of 32,768 frames at 16,384 envs)")
+    """Minibatches per epoch at most (fewer where they would be below ``min_minibatch``)."""
     min_minibatch: int = bounded(1024, ge=1)
+    """Frames per minibatch at least (at most the whole rollout)."""
     lr: float = bounded(3e-4, gt=0)
     """Initial learning rate (Adam)."""
     lr_schedule: str = bounded("adaptive", choices=("adaptive", "fixed"))
     """``adaptive``: after every epoch, divide the learning rate by 1.5 when the epoch's mean
-    approximate KL to the rollout policy exceeds twice ``kl_target`` and multiply it by 1.5 when
-    it is below half of it (rl_games' schedule; the paper trained with rl_games); ``fixed``:
-    keep ``lr``."""
+    approximate KL to the rollout policy exceeds twice ``kl_target``, multiply it by 1.5 below
+    half of it (rl_games' schedule; the paper trained with rl_games); ``fixed``: keep ``lr``."""
     kl_target: float = bounded(0.016, gt=0)
-    """The KL per epoch that the adaptive schedule aims at. 0.032 on the knife alone: 0/50 at
-    1.37 M env steps where the baseline lifted 12/50 by 3 cm
-    (results/cpu-iterations-2026-11-27/)."""
+    """The KL per epoch that the adaptive schedule aims at (results/cpu-iterations-2026-11-27/)."""
     lr_bounds: tuple[float, float] = bounded((1e-6, 1e-2), gt=0)
+    """Lowest and highest learning rate of the adaptive schedule."""
     gamma: float = bounded(0.99, ge=0, le=1)
+    """Discount factor (results/cpu-plate-discount-2026-11-27/)."""
     lmbda: float = bounded(0.95, ge=0, le=1)
+    """GAE's lambda."""
     clip_epsilon: float = bounded(0.2, gt=0)
+    """PPO's clipping range of the probability ratio."""
     entropy_coef: float = 0.0
+    """Weight of the entropy bonus in the loss (results/cpu-com-builtin-no-lift/)."""
     critic_coef: float = bounded(1.0, ge=0)
+    """Weight of the value loss."""
     max_grad_norm: float = bounded(1.0, gt=0)
-    hidden: tuple[int, ...] = bounded((256, 128, 64), ge=1)
-    """The 3-layer MLP of the policy and of the value function."""
+    """Gradients are clipped to this norm."""
+    hidden: tuple[int, ...] = bounded((256, 128, 64), ge=1, paper="three layers (sizes not given)")
+    """Layer sizes of the MLP of the policy and of the value function
+    (results/cpu-knife-arms-2026-11-26/)."""
     pointnet_hidden: tuple[int, ...] = bounded((64, 128), ge=1)
     """Shared per-point MLP of the point-cloud encoder (then max pooling)."""
     context_hidden: tuple[int, ...] = bounded((64, 64), ge=1)
     """Shared per-object MLP of the context encoder (bin task with context; then a masked max)."""
     stagger_episodes: bool = False
-    """Start every env's first episode at a random step in [0, ``max_steps``), so that the
-    episodes cut at ``max_steps`` end in different rollouts. Without it every env starts and is
-    cut in the same step until successes set them apart, and each rollout holds one phase of
-    the episode (all reaching, or all late); legged_gym randomizes the first episode's length
-    for the same reason. Training only: evaluation always plays whole episodes."""
+    """Start every env's first episode at a random step in [0, ``max_steps``), so that episodes
+    cut at ``max_steps`` end in different rollouts (as legged_gym does); training only
+    (results/cpu-table1/)."""
     init_log_std: float | tuple[float, ...] = -0.5
-    """Log of the untrained policy's action std (learned from there): one number for every
-    action (-0.5: std 0.61), or one per action (the 6 hand-pose actions, then the 5 hand
-    actions). Per action is not the paper's; an option (2026-11-27) for grasps that the
-    exploration noise itself breaks (``scripts/start_noise.py``: from the plate's recorded rim
-    pinches a fixed lifting policy never succeeds at std 0.61). Tried on the plate (0.15 pose,
-    0.05 hand) and the knife (0.3, 0.1) alone: the plate still 0/50, the knife 0/50 against
-    10/50 at equal env steps, slower to learn from home
+    """Log of the untrained policy's action std (learned from there): one number (-0.5: std
+    0.61) or, ours, one per action (the 6 hand-pose actions, then the 5 hand actions)
     (results/cpu-exploration-noise-2026-11-27/)."""
     state_dependent_std: bool = False
-    """Let the action std depend on the state: log std = ``init_log_std``'s learned values plus
-    a linear head (zero at the start) on the policy's last hidden features. Not the paper's
-    (its std is one learned vector); an option (2026-11-27) for grasps that exploration noise
-    breaks while reaching them needs it: noise lower only where it costs. Tried on the knife,
-    the toy airplane and the plate alone (2.0 M env steps, one seed): no difference from their
-    baselines (knife 5/50 vs 10/50, airplane 30/50 vs 30/50, plate 0 held at 3 cm); on the knife
-    the head did learn high noise at home and low at the knife
-    (results/cpu-state-std-2026-11-27/)."""
+    """Ours: log std = ``init_log_std``'s learned values plus a linear head (zero at the start)
+    on the policy's last hidden features, so noise can be lower only where it costs; false:
+    one learned vector, the paper's (results/cpu-state-std-2026-11-27/)."""
     init_action_mean: tuple[float, ...] = (0.0,) * ACTION_DIM
-    """Mean action of the untrained policy (the output layer's bias). Zero (the usual choice)
-    puts every hand DoF mid-range at the first step; ``[0, 0, 0, 0, 0, 0, 1, -1, -1, -1, -1]``
-    keeps the home posture instead (thumb opposed, fingers open), as in the CPU learning run
-    of results/cpu-com-builtin-curriculum/."""
+    """Mean action of the untrained policy (the output layer's bias): zero puts every hand DoF
+    mid-range at the first step; ``[0, 0, 0, 0, 0, 0, 1, -1, -1, -1, -1]`` keeps the home
+    posture (results/cpu-com-builtin-curriculum/)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -494,17 +492,20 @@ class PPOConfig(_Checked):
 
 @dataclass(frozen=True)
 class RunConfig(_Checked):
-    """The training run: length, seed, bookkeeping."""
+    """The training run: length, seed, bookkeeping; and, all of them the project's own, how
+    training episodes may start along scripted grasps (``grasp_start*``) and how a run may start
+    from another agent (``init_agent*``, ``warmup_*``). Their history:
+    results/config-evidence.md."""
 
-    total_steps: int = bounded(10_000_000, ge=1)
+    total_steps: int = bounded(10_000_000, ge=1, paper="262144000 (500 iterations)")
     """Environment steps (actions of one env count one) before the run stops."""
     seed: int = bounded(0, ge=0)
+    """Seed of the run's randomness: the networks' initial weights, the sampled actions, the
+    resets, the minibatch order (``trainer.randomness``); not of the initial-state banks."""
     max_minutes: float = bounded(0.0, ge=0)
     """Wall-clock budget (minutes of training, a resumed run's earlier parts included; 0: none):
-    the run stops, with a checkpoint, after the first iteration that ends past it, whatever
-    ``total_steps`` says. For budgets stated in time (an hour of CPU) and for chunks that must
-    end before a lent device's per-command limit (``--minutes 9``, then ``--resume DIR
-    --minutes 18``, ...)."""
+    the run stops, with a checkpoint, after the first iteration that ends past it (for chunks
+    within a lent device's per-command limit: ``--minutes 9``, then ``--resume``)."""
     checkpoint_every: int = bounded(10, ge=1)
     """Iterations between checkpoints (the last one is always written)."""
     success_window: int = bounded(0, ge=0)
@@ -512,79 +513,39 @@ class RunConfig(_Checked):
     torch_threads: int = bounded(1, ge=1)
     """Threads of torch's own ops (the simulation has its own pool)."""
     grasp_starts: float = bounded(0.0, ge=0, le=1)
-    """Not the paper's (an option, 2026-11-27): the fraction of training episodes (lift or bin)
-    that start from a state along a scripted grasp that lifted the env's object, recorded when
-    the run starts (``trainer.training.grasp_starts``): the hand on its way to, or closed
-    around, the object. Those episodes count in no success rate and not in the curriculum;
-    evaluation never starts there. 0 (the default): every episode starts home. 0.5 against
-    0.25, alone, ~2 M env steps (results/cpu-iterations-2026-11-27/): the knife 30/50 and 0/50
-    held at 0.2 m (seeds 0, 1) against 10/50 and 13/50, no difference two seeds resolve; the
-    toy airplane 171/200 and 161/200 against 114/200 and 156/200 (seeds 0, 1). The ten Table I
-    objects together, seed 0: 0.805 at 4.59 M env steps against 0.665, the plate 13/20 against
-    0 (results/cpu-together-starts50-2026-11-27/; configs/cpu-table1.toml uses 0.5)."""
+    """The fraction of training episodes that start from a state along a scripted grasp that
+    lifted the env's object (recorded when the run starts; counted in no success rate or
+    curriculum); 0: all start home (results/cpu-together-starts50-2026-11-27/)."""
     grasp_start_family: str = "best"
     """The scripted grasp those starts come from: ``best`` (each object's family in
     ``trainer.grasps.families.BEST``, Table I objects only) or one ``FAMILY[:VARIANT]``."""
     grasp_start_rounds: int = bounded(2, ge=1)
     """Scripted trials per env recorded for ``grasp_starts`` (each a fresh reset)."""
     grasp_start_phase: str = bounded("approach", choices=GRASP_START_PHASES)
-    """Which states of the script: ``approach`` (every 10 actions from the 10th to the end of
-    the closing: the hand on its way down, then closing), ``closing`` (every 10 actions of
-    the closing window only: the hand at the object) or ``lift`` (every 10 actions from the
-    closing's start to the script's end: closing, then lifting; a reset uses only the states
-    whose target is still below its object's current lift target, so the lift's states come
-    into use as the curriculum raises it). The plate with ``lift`` against ``closing``, one seed,
-    1.25 M env steps (results/cpu-plate-lift-starts-2026-11-27/): its start episodes lifted 0.17
-    of the time at the end against never, and it still rested flat from home (0/50 at 3 cm)."""
+    """Which states of the script (every 10th action): ``approach`` (from the 10th to the end
+    of the closing), ``closing`` (its closing only) or ``lift`` (closing, then lifting: a reset
+    uses those below its object's lift target) (results/cpu-plate-lift-starts-2026-11-27/)."""
     init_agent: str = ""
-    """A checkpoint file, or a run directory (its last readable checkpoint), whose agent
-    (networks, action std and normalizers) this run starts from; everything else (optimizer,
-    curriculum, envs, generators) starts fresh. "" (the default): a freshly initialised agent.
-    For fine-tuning, and for measuring what one task's policy brings to another (the agents
-    must match: same representation, task observations and ``[ppo]`` network sizes). A resumed
-    run continues from its own checkpoint."""
+    """A checkpoint file, or a run directory (its last readable checkpoint), whose agent this run
+    starts from (networks, action std, normalizers; all else fresh); "": a fresh agent. The
+    agents must match (representation, observations, network sizes)."""
     init_agent_parts: tuple[str, ...] = AGENT_PARTS
-    """Which parts of ``init_agent``'s agent this run takes (of ``networks``, ``action_std``,
-    ``normalizers``); the others are this run's own fresh ones, exactly those a run without
-    ``init_agent`` starts with. For separating what carries from one task to another: the
-    plate alone from the ten together's agent learned as well with a fresh action std, not at
-    all with fresh normalizers (the networks' inputs rescaled) or fresh networks
-    (results/cpu-plate-agent-parts-2026-11-28/)."""
+    """Which parts of ``init_agent``'s agent this run takes (``networks``, ``action_std``,
+    ``normalizers``); the others start fresh (results/cpu-plate-agent-parts-2026-11-28/)."""
     warmup_objects: str = ""
-    """Not the paper's (an option, 2026-11-28): objects (a set or names, as ``objects``) the
-    run trains on first, for ``warmup_steps`` env steps, in its folder's ``warmup/`` (a run of
-    its own: this config with these objects and no warmup); the run then starts from that
-    agent (the parts ``init_agent_parts`` names) on its own objects. "" (the default): none.
-    Its steps come on top of ``total_steps``, its minutes count in ``max_minutes`` (the run's
-    ``wall_time_s`` goes on from the warmup's). For objects a fresh agent learns slowly or not
-    at all: the knife alone after 1.06 M env steps on the tuna can, 60 minutes in all:
-    45/50 and 46/50 held at 0.2 m (seeds 0, 1; a fresh agent at 60 minutes: 30/50 and 0/50).
-    What carries depends on the source agent: the plate with the same warmup 0/50 (two
-    seeds), though from another tuna can agent of 1.06 M (a quarter of its episodes from
-    grasp starts) it held 35/50 after 0.66 M (results/cpu-warmup-2026-11-28/,
-    results/cpu-plate-agent-parts-2026-11-28/), and not from that agent's second seed; that
-    one carry came through the weights of the can's constant extents, never trained
-    (``init_agent_unseen``, results/cpu-plate-source-2026-11-28/)."""
+    """Objects (as ``objects``) the run first trains on for ``warmup_steps`` env steps, in its
+    ``warmup/`` folder, before it starts from that agent on its own objects (steps on top of
+    ``total_steps``, minutes within ``max_minutes``) (results/cpu-warmup-2026-11-28/)."""
     warmup_steps: int = bounded(0, ge=0)
     """Env steps of the warmup on ``warmup_objects`` (0: none)."""
     init_agent_unseen: str = bounded("keep", choices=INIT_AGENT_UNSEEN)
-    """Not the paper's (an option, 2026-11-28): what a run started from another agent
-    (``init_agent`` or its warmup's) does with the observation features that agent never saw
-    vary (for one object trained alone: its bbox's extents, its superquadric's shape and size).
-    ``keep`` (the default): as they are, their weights the untrained initial ones; the new
-    objects' values, clipped to ±5 by the normalizer, pass through them. ``silence``: those
-    weights zeroed first (``Agent.silence_unseen_features``), so that the agent starts as
-    exactly the policy it was, and they train from 0. Needs ``networks`` and ``normalizers``
-    in ``init_agent_parts``. A diagnosis more than a remedy: the plate from the tuna can
-    agent that carried to it (29/50 at 0.33 M kept) held 0/50 silenced, its start episodes
-    lifted 0.3 % instead of 48 % in plate iterations 25-40; from the warmups' tuna can
-    agents that carried nothing it changed nothing (results/cpu-plate-source-2026-11-28/):
-    what a one-object agent brought to the plate came through those untrained weights."""
+    """What a run started from another agent does with the features that agent never saw vary
+    (a lone object's extents): ``keep`` them as they are, or ``silence`` their weights (zeroed,
+    ``Agent.silence_unseen_features``) (results/cpu-plate-source-2026-11-28/)."""
     random_streams: bool = True
-    """Every generator of the run draws from its own stream derived from ``seed``
-    (``trainer.randomness``). False: each is seeded with ``seed`` itself, as runs before
-    2026-11-25 were (their config.json lacks this key and reads as false, so they resume and
-    evaluate as they ran)."""
+    """Every generator draws from its own stream derived from ``seed``; false: each is seeded
+    with ``seed`` itself, as runs before 2026-11-25 were (their config.json lacks this key and
+    reads as false) (results/structure-check-2026-11-25/)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -653,10 +614,21 @@ def _toml_env(values: dict[str, Any], path: Path | None) -> EnvConfig:
     return _build(EnvConfig, env, str(path)) if env else EnvConfig()
 
 
-def load_env_config(path: Path | None = None, **overrides: Any) -> EnvConfig:
-    """Defaults, then the TOML file at ``path``, then keyword ``overrides`` (top-level fields,
-    whole sections or dicts of section fields), e.g. ``load_env_config(num_envs=16)``."""
+def _set_names(sets: Mapping[str, Any]) -> dict[str, str]:
+    """How errors name each ``--set`` value: the assignment as given."""
+    return {key: f"--set {key}={toml_value(value)}" for key, value in sets.items()}
+
+
+def load_env_config(
+    path: Path | None = None, sets: Mapping[str, Any] | None = None, **overrides: Any
+) -> EnvConfig:
+    """Defaults, then the TOML file at ``path``, then ``sets`` (``--set``: dotted keys as the
+    file writes them, checked by ``trainer.config_keys.parse_sets``; as if the file said them),
+    then keyword ``overrides`` (top-level fields, whole sections or dicts of section fields),
+    e.g. ``load_env_config(num_envs=16)``."""
     cfg = _toml_env(read_config_toml(path), path)
+    if sets:
+        cfg = _build(EnvConfig, dotted_overrides(sets), None, base=cfg, names=_set_names(sets))
     return _build(EnvConfig, overrides, None, base=cfg) if overrides else cfg
 
 
@@ -666,9 +638,11 @@ def load_train_config(
     ppo: dict[str, Any] | None = None,
     run: dict[str, Any] | None = None,
     names: Mapping[str, str] | None = None,
+    sets: Mapping[str, Any] | None = None,
 ) -> TrainConfig:
     """Defaults, then the TOML file (environment knobs as in ``load_env_config`` plus ``[ppo]``
-    and ``[run]`` sections), then the override dicts (command-line options; ``names`` maps their
+    and ``[run]`` sections), then ``sets`` (``--set``, as in ``load_env_config``; ``ppo.`` and
+    ``run.`` keys too), then the override dicts (command-line options; ``names`` maps their
     keys, dotted below the section, to the options, which errors then name)."""
     values = read_config_toml(path)
     cfg = TrainConfig(
@@ -676,6 +650,20 @@ def load_train_config(
         _build(PPOConfig, values.get("ppo", {}), str(path), "ppo"),
         _build(RunConfig, values.get("run", {}), str(path), "run"),
     )
+    if sets:
+        given = _set_names(sets)
+        parts: dict[str, dict[str, Any]] = {"env": {}, "ppo": {}, "run": {}}
+        for key, value in sets.items():
+            section, _, rest = key.partition(".")
+            if section in ("ppo", "run") and rest:
+                parts[section][rest] = value
+            else:
+                parts["env"][key] = value
+        cfg = TrainConfig(
+            _build(EnvConfig, dotted_overrides(parts["env"]), None, base=cfg.env, names=given),
+            _build(PPOConfig, parts["ppo"], None, "ppo", base=cfg.ppo, names=given),
+            _build(RunConfig, parts["run"], None, "run", base=cfg.run, names=given),
+        )
     return TrainConfig(
         _build(EnvConfig, env or {}, None, base=cfg.env, names=names),
         _build(PPOConfig, ppo or {}, None, base=cfg.ppo, names=names),
@@ -738,31 +726,7 @@ def read_train_config(path: Path) -> TrainConfig:
     return train_config_from_dict(values, str(path))
 
 
-# --- command-line overrides (bench/graspability.py, bench/env_throughput.py) ----------------
-def parse_value(text: str) -> Any:
-    """A command-line value (the benchmarks' ``--set KEY=VALUE``) as TOML reads it (``0.75``,
-    ``true``, ``[1, 2]``); a bare word that is not TOML (``hulls``) is a string."""
-    try:
-        return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        return text
-
-
-def parse_assignment(text: str, option: str) -> tuple[str, str]:
-    """``KEY=VALUE`` -> (key, value text); anything else is a one-line error naming ``option``."""
-    key, sep, value = text.partition("=")
-    if not sep or not key.strip() or not value.strip():
-        raise TrainerError(f"{option} {text!r}: write KEY=VALUE, e.g. robot.hand_geometry=hulls")
-    return key.strip(), value.strip()
-
-
-def parse_sets(texts: list[str], option: str = "--set") -> dict[str, Any]:
-    """``KEY=VALUE`` texts -> {dotted key: parsed value} (``parse_value``); a malformed one is a
-    one-line error naming ``option``."""
-    pairs = (parse_assignment(text, option) for text in texts)
-    return {key: parse_value(value) for key, value in pairs}
-
-
+# --- command-line overrides (``--set``: trainer.config_keys) ---------------------------------
 def dotted_overrides(values: Mapping[str, Any]) -> dict[str, Any]:
     """Dotted keys -> ``load_env_config`` keyword overrides (``section.field`` becomes a dict of
     the section's fields; a key without a dot is a top-level field)."""
