@@ -8,7 +8,7 @@ operations on a GPU (which ``torch.compile`` fuses into the trainer's env step):
     lookup = SDFLookup.from_hdf5([f"data/processed/{n}.h5" for n in names], device="cuda")
     d = lookup.query(points_world, object_pos, object_quat, object_ids)   # (E, K) metres
 
-Conventions (the data contract of README.md):
+Conventions (the data contract, docs/data-contract.md):
 - ``grid[i, j, k]`` is the signed distance (metres, negative inside) at the voxel centre
   ``bounds_min + ((i, j, k) + 0.5) * voxel_size`` of the object frame (origin at the COM).
 - ``object_quat`` is (w, x, y, z), the rotation R taking object-frame vectors to the world

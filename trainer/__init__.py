@@ -9,5 +9,5 @@ object slots (the model from ``assets``, simulated by a ``sim`` backend, observe
 scripted grasp families (top, pinch) that show what the physics can grasp, each trial's outcome
 classified; ``robots`` the robots (UR5e + SIH hand, floating hand) as parts; ``randomness`` the
 run's one seed and its streams; ``cli`` is the ``trainer`` command. The data it reads is
-described in README.md ("The data contract"); the parts in docs/architecture.md.
+described in docs/data-contract.md; the parts in docs/architecture.md.
 """
