@@ -2,7 +2,7 @@
 metrics.csv column but the timings (``wall_time_s``, ``fps``), row for row, and the eval tables
 byte for byte.
 
-    python scripts/compare_runs.py NEW REFERENCE [--runs lift,bin,floating]
+    python scripts/compare_runs.py NEW REFERENCE [--runs lift,bin,floating,starts,warmup]
 
 Prints IDENTICAL or DIFFERENT (with the first differences) per run; exits 1 if any differs.
 """
@@ -42,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("new", type=Path)
     parser.add_argument("reference", type=Path)
-    parser.add_argument("--runs", default="lift,bin,floating")
+    parser.add_argument("--runs", default="lift,bin,floating,starts,warmup")
     args = parser.parse_args(argv)
     failed = False
     for run in args.runs.split(","):

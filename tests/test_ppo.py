@@ -26,7 +26,7 @@ from trainer.config import RewardConfig, load_train_config
 from trainer.errors import TrainerError
 from trainer.evaluation import evaluate, run_episodes
 from trainer.models import Agent, RunningNorm
-from trainer.ppo import minibatch_size, train, warmup_config
+from trainer.ppo import minibatch_size, train, train_run, warmup_config
 from trainer.tasks import make_env, observation_spec
 from trainer.training.checkpoint import agent_part, copy_agent_parts, load_agent
 from trainer.training.curriculum import LiftCurriculum
@@ -601,7 +601,7 @@ def test_warmup_trains_its_objects_first_then_the_run_from_that_agent(
         cfg, env=dataclasses.replace(cfg.env, objects="builtin_sphere"),
         run=dataclasses.replace(cfg.run, warmup_objects="builtin_cylinder", warmup_steps=3 * 32),
     )
-    run = train(cfg, tmp_path / "warmed", progress=False)
+    run = train_run(cfg, tmp_path / "warmed", progress=False)
     warm = json.loads((run.warmup / "config.json").read_text())
     assert warm["env"]["objects"] == "builtin_cylinder" and warm["run"]["total_steps"] == 96
     assert warm["run"]["warmup_steps"] == 0
@@ -621,11 +621,11 @@ def test_warmup_trains_its_objects_first_then_the_run_from_that_agent(
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
     # A run stopped while warming up (its time budget) resumes there, then runs on: the same.
     short = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, max_minutes=1e-6))
-    stopped = train(short, tmp_path / "stopped", progress=False)
+    stopped = train_run(short, tmp_path / "stopped", progress=False)
     assert metrics_iterations(stopped.warmup) == [1] and not stopped.has_checkpoint()
     assert "stopped while warming up" in capsys.readouterr().out
     longer = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, max_minutes=60.0))
-    train(longer, stopped.path, resume=True, progress=False)
+    train_run(longer, stopped.path, resume=True, progress=False)
     c = torch.load(stopped.last, weights_only=False)["agent"]
     assert all(torch.equal(a[k], c[k]) for k in a)
     with pytest.raises(TrainerError, match="warmup_steps"):
@@ -655,7 +655,7 @@ def test_a_warmup_stopped_by_a_signal_names_its_run_to_resume(
             run=dataclasses.replace(cfg.run, warmup_objects="builtin_cylinder",
                                     warmup_steps=3 * 32),
         )
-        run = train(cfg, tmp_path / "warmed", progress=False)
+        run = train_run(cfg, tmp_path / "warmed", progress=False)
     finally:
         signal.signal(signal.SIGTERM, previous)
     assert delivered == [signal.SIGTERM]

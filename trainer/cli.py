@@ -534,19 +534,19 @@ def run(
             f"{task}{e.representation}{context}-{e.reward.kind}-{e.robot.kind}-s{cfg.run.seed}"
         )
 
-    from trainer.ppo import train
+    from trainer.ppo import train_run
 
     click.echo(f"run: {run_dir}")
-    train(cfg, run_dir, overwrite=overwrite)
+    train_run(cfg, run_dir, overwrite=overwrite)
 
 
 def _resume(run_dir: Path, steps: int | None, minutes: float | None) -> None:
-    from trainer.ppo import train
+    from trainer.ppo import train_run
     from trainer.training.run_dir import RunDir
 
     cfg = RunDir(run_dir).load_config()
     changes, said = {}, []
-    # Neutral wording: a --steps below what the run has done is refused next, by train().
+    # Neutral wording: a --steps below what the run has done is refused next, by train_run().
     if steps is not None:
         changes["total_steps"] = steps
         said.append(f"total steps {steps:,}, was {cfg.run.total_steps:,}")
@@ -556,7 +556,7 @@ def _resume(run_dir: Path, steps: int | None, minutes: float | None) -> None:
     if changes:
         cfg = dataclasses.replace(cfg, run=override(cfg.run, changes, RUN_OPTIONS))
     click.echo(f"run: {run_dir} (resumed{'; ' if said else ''}{'; '.join(said)})")
-    train(cfg, run_dir, resume=True)
+    train_run(cfg, run_dir, resume=True)
 
 
 @cli.command("eval")

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,13 +26,15 @@ from tensordict import TensorDictBase
 from torchrl.collectors import Collector
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
+from tqdm import tqdm
 
 from trainer.config import AGENT_PARTS, PPOConfig, TrainConfig, check_device
 from trainer.errors import TrainerError
 from trainer.models import Agent
 from trainer.objects import resolve_names
-from trainer.randomness import run_streams
+from trainer.randomness import RandomStreams, run_streams
 from trainer.tasks import GraspTask, make_env
+from trainer.tasks.starts import GraspStarts
 from trainer.training.checkpoint import (
     TrainState,
     copy_agent_parts,
@@ -41,7 +44,7 @@ from trainer.training.checkpoint import (
     write_checkpoint,
 )
 from trainer.training.curriculum import LiftCurriculum
-from trainer.training.grasp_starts import GraspStarts, record_grasp_starts
+from trainer.training.grasp_starts import record_grasp_starts
 from trainer.training.outcomes import EpisodeStats
 from trainer.training.progress import ProgressLog, RunClock
 from trainer.training.run_dir import RunDir
@@ -75,149 +78,47 @@ def train(
     overwrite: bool = False,
     resume_as: Path | None = None,
 ) -> RunDir:
-    """Train (or, with ``resume``, continue) the run in ``run_dir``; returns it.
+    """Train (or, with ``resume``, continue) the one run in ``run_dir``; returns it.
 
     With ``resume``, ``cfg`` is None (the run's config.json) or that config with a larger
     ``run.total_steps`` or ``run.max_minutes`` (extend the run). Without it, a directory that
-    already holds a run is refused unless ``overwrite`` (which deletes that run first):
-    appending to its metrics would mix two runs.
-
-    SIGINT or SIGTERM during the loop ends the run at the end of the current iteration with a
-    checkpoint; then the signal is delivered as usual (Ctrl-C: KeyboardInterrupt).
-    ``stop_after``: leave after this many iterations of this call, as a killed run would (the
-    work since the last checkpoint is lost); used by the resume test.
+    already holds a run is refused unless ``overwrite`` (which deletes that run first).
+    SIGINT or SIGTERM ends the run at the end of the current iteration with a checkpoint; then
+    the signal is delivered as usual (Ctrl-C: KeyboardInterrupt). ``stop_after``: leave after
+    this many iterations of this call, as a killed run would (the resume test).
     ``resume_as``: the folder the stop messages tell the user to ``--resume`` (default
-    ``run_dir``); a warmup names its run, which resumes it and then goes on to the run itself.
-
-    With ``[run] warmup_objects`` the run first trains (or resumes) its warmup in
-    ``run_dir/warmup`` and starts from that agent; stopped while warming up, it returns early."""
+    ``run_dir``). A run with ``[run] warmup_objects`` starts from its trained warmup:
+    ``train_run`` composes the two."""
     run = RunDir(Path(run_dir))
-    resume_target = Path(resume_as) if resume_as is not None else run.path
-    checkpoint = None
-    if resume:
-        cfg = run.config_to_resume(cfg)
-        if not (cfg.run.warmup_steps and not run.has_checkpoint()):  # (else: still warming up)
-            checkpoint = load_last_checkpoint(run)
-            _check_left_to_do(run, cfg, checkpoint)
-    else:
-        run.make_room(overwrite)
-    assert cfg is not None
-    check_device(
-        cfg.env.device, f"device {cfg.env.device!r} of {run.path}",
-        "resume it where that device exists" if resume else "train with --device cpu",
-    )
-    warmup_wall_time = 0.0
-    if checkpoint is None and cfg.run.warmup_steps:
-        # Before this run's env exists (one env in memory at a time); its config.json first,
-        # so that a run stopped while warming up resumes with --resume of this folder (but
-        # not before both object sets are known to exist).
-        for spec in (cfg.run.warmup_objects, cfg.env.objects):
-            resolve_names(spec, cfg.env.data_dir)
-        run.write_config(cfg)
-        warmed = _warm_up(cfg, run, progress)
-        if warmed is None:
-            return run
-        warmup_wall_time = warmed
-    torch.set_num_threads(cfg.run.torch_threads)
-    streams = run_streams(cfg)
-    streams.seed_global_torch("actions")
-    # The env first: a config it refuses (a bin larger than the object set, a missing object)
-    # leaves no run directory behind that a corrected rerun would have to --overwrite.
-    env = make_env(cfg.env, seed=streams)
-    initial_agent, agent_note = None, None
-    agent_source = run.warmup if cfg.run.warmup_steps else cfg.run.init_agent
-    if checkpoint is None and agent_source:
-        # Checked before the grasp starts' minutes of recording; built aside from the global
-        # generator, so that the run draws what any run of its config draws.
-        with torch.random.fork_rng(devices=[]):
-            initial_agent = make_agent(env, cfg.ppo)
-        agent_note = init_agent_from(initial_agent, Path(agent_source))
-        if set(cfg.run.init_agent_parts) != set(AGENT_PARTS):
-            agent_note += f", its {' and '.join(cfg.run.init_agent_parts)} only"
-    grasp_note = None
-    if cfg.run.grasp_starts > 0:
-        # Recorded once per run (minutes for ten objects); a resume loads them (recording
-        # again from the same streams would give the same states).
-        if resume and run.grasp_starts.is_file():
-            starts = GraspStarts.load(run.grasp_starts)
-        else:
-            starts = record_grasp_starts(cfg.env, streams, cfg.run.grasp_start_family,
-                                         cfg.run.grasp_start_rounds,
-                                         phase=cfg.run.grasp_start_phase)
-            starts.save(run.grasp_starts)
-        env.set_grasp_starts(starts, cfg.run.grasp_starts, streams.torch("grasp_choice"))
-        grasp_note = (f"grasp starts: {int(starts.valid.any(1).sum())} of {cfg.env.num_envs} "
-                      f"envs have one; the scripted trials lifted "
-                      f"{float(starts.lifted.float().mean()):.2f} of theirs")
-    run.write_config(cfg)
-    agent = make_agent(env, cfg.ppo)
-    if initial_agent is not None:
-        copy_agent_parts(initial_agent, agent, cfg.run.init_agent_parts)
-        if cfg.run.init_agent_unseen == "silence":
-            silenced = agent.silence_unseen_features()
-            agent_note += f"; {silenced} observation features it never saw vary silenced"
-    update = PPOUpdate.build(agent, cfg.ppo, minibatch_size(cfg))
-    state = make_train_state(cfg, env, agent, update.optimizer)
-    if checkpoint is not None:
-        state.load_state_dict(checkpoint)
-        run.truncate_metrics(state.iteration)
-    else:
-        state.wall_time_s = warmup_wall_time
-        if cfg.ppo.stagger_episodes:
-            env.stagger_next_reset()  # (a resumed run's envs continue where they stood)
-    env.set_lift_target(state.curriculum.targets())
-    frames = iteration_frames(cfg)
+    cfg, checkpoint = open_run(run, cfg, resume, overwrite)
+    parts = build_parts(cfg, run, checkpoint, progress)
+    env, agent, update, state = parts.env, parts.agent, parts.update, parts.state
+    frames, iterations = iteration_frames(cfg), total_iterations(cfg)
     collector = make_collector(env, agent, frames)
     if checkpoint is not None:
         restore_global_rng(checkpoint, env.device)  # after the collector's set-up draws from it
-    iterations = total_iterations(cfg)
     log = ProgressLog(run, iterations * frames, state.iteration, frames, resume, progress)
-    for note in (agent_note, grasp_note):  # (the log opens after the run's state is loaded)
-        if note is not None:
-            log.write(note)
-    clock = RunClock(state.wall_time_s, state.iteration * frames)
-    stop = StopSignals()
+    for note in parts.notes:  # (the log opens after the run's state is loaded)
+        log.write(note)
+    clock, stop = RunClock(state.wall_time_s, state.iteration * frames), StopSignals()
+    resume_target = Path(resume_as) if resume_as is not None else run.path
     try:
         with stop:
             for data in collector:
-                if state.iteration >= iterations:
+                if state.iteration >= iterations or stop_after == 0:
                     break
-                if stop_after is not None:
-                    if stop_after <= 0:
-                        break
-                    stop_after -= 1
+                stop_after = None if stop_after is None else stop_after - 1
                 state.iteration += 1
                 losses = update(data, state.shuffle)
                 episodes = state.episodes.record(data, state.curriculum)
                 # The row reports the curriculum as this iteration trained; then it moves on.
-                curriculum = state.curriculum
-                curriculum_on = curriculum.active
-                h_bar, target_rate = curriculum.mean_h_bar(), curriculum.rate()
-                object_h_bars = list(zip(env.objects.names, curriculum.h_bars, strict=True))
-                if curriculum.promote():
-                    env.set_lift_target(curriculum.targets())
-                steps = state.iteration * frames
-                state.wall_time_s, fps = clock.lap(steps)
-                row = {
-                    "iteration": state.iteration,
-                    "env_steps": steps,
-                    "wall_time_s": state.wall_time_s,
-                    "fps": fps,
-                    "success_rate": state.episodes.success_rate(),
-                    "object_success_rate": state.episodes.object_success_rate(),
-                    "h_bar": h_bar,
-                    "target_success_rate": target_rate,
-                    **episodes,
-                    **losses,
-                    "action_std": agent.policy_net.mean_std(data["scale"]),
-                    "lr": update.optimizer.param_groups[0]["lr"],
-                }
-                # No rate before the first episode ends: "nan" would read as a broken run.
-                success = f"{row['object_success_rate']:.2f}" if state.episodes.outcomes else "-"
-                postfix = {"success": success, "it": state.iteration}
-                if curriculum_on:
-                    postfix.update(h_bar=f"{h_bar:.2f}", at_h_bar=f"{target_rate:.2f}")
-                log.log(row, postfix, object_h_bars if curriculum.per_object else ())
+                row, postfix, object_h_bars = iteration_row(state, env, frames, episodes, losses)
+                if state.curriculum.promote():
+                    env.set_lift_target(state.curriculum.targets())
+                state.wall_time_s, row["fps"] = clock.lap(state.iteration * frames)
+                row.update(wall_time_s=state.wall_time_s, action_std=agent.policy_net.mean_std(
+                    data["scale"]), lr=update.optimizer.param_groups[0]["lr"])
+                log.log(row, postfix, object_h_bars)
                 for message in env.backend.drain_warnings():  # e.g. Warp buffers to enlarge
                     log.write(f"warning: {message}")
                 done = state.iteration == iterations
@@ -225,27 +126,46 @@ def train(
                 if (state.iteration % cfg.run.checkpoint_every == 0 or done or out_of_time
                         or stop.received):
                     write_checkpoint(run, state.state_dict())
-                if done:
-                    break
-                if out_of_time:
-                    log.write(
-                        f"stopped: time budget of {cfg.run.max_minutes:g} minutes used "
-                        f"({steps:,} env steps, iteration {state.iteration}); extend it with "
-                        f"--resume {resume_target} --minutes M"
-                    )
-                    break
-                if stop.received:
-                    log.write(
-                        f"stopped: {stop.received.name} ({steps:,} env steps, iteration "
-                        f"{state.iteration}, checkpoint written); continue it with --resume "
-                        f"{resume_target}"
-                    )
+                steps = f"{row['env_steps']:,} env steps, iteration {state.iteration}"
+                if out_of_time and not done:
+                    log.write(f"stopped: time budget of {cfg.run.max_minutes:g} minutes used "
+                              f"({steps}); extend it with --resume {resume_target} --minutes M")
+                elif stop.received and not done:
+                    log.write(f"stopped: {stop.received.name} ({steps}, checkpoint written); "
+                              f"continue it with --resume {resume_target}")
+                if done or out_of_time or stop.received:
                     break
     finally:
         log.close()
         collector.shutdown()
     stop.reraise()
     return run
+
+
+def train_run(
+    cfg: TrainConfig | None, run_dir: Path, resume: bool = False, progress: bool = True,
+    overwrite: bool = False,
+) -> RunDir:
+    """A run as ``trainer run`` trains it: with ``[run] warmup_objects``, two runs composed —
+    its warmup (``warmup_config``, a run of its own in ``run_dir/warmup``), then the run itself
+    started from the warmup's agent; without, ``train``. Arguments as ``train``'s. A run
+    stopped in its warmup resumes there with ``resume``."""
+    run = RunDir(Path(run_dir))
+    if resume:
+        cfg = run.config_to_resume(cfg)
+    assert cfg is not None or resume
+    if cfg is None or not cfg.run.warmup_steps or run.has_checkpoint():
+        return train(cfg, run.path, resume=resume, progress=progress, overwrite=overwrite)
+    if not resume:
+        run.make_room(overwrite)
+    # Its config.json first, so that a run stopped while warming up resumes with --resume of
+    # this folder (but not before both object sets are known to exist).
+    for spec in (cfg.run.warmup_objects, cfg.env.objects):
+        resolve_names(spec, cfg.env.data_dir)
+    run.write_config(cfg)
+    if not _warm_up(cfg, run, progress):
+        return run
+    return train(cfg, run.path, resume=True, progress=progress)
 
 
 def warmup_config(cfg: TrainConfig) -> TrainConfig:
@@ -261,10 +181,9 @@ def warmup_config(cfg: TrainConfig) -> TrainConfig:
     )
 
 
-def _warm_up(cfg: TrainConfig, run: RunDir, progress: bool) -> float | None:
-    """Train (or resume) the warmup of ``run`` in ``run.warmup``; returns its training time (s)
-    once it is complete and time is left for the run itself, else None (stopped: the run
-    resumes it)."""
+def _warm_up(cfg: TrainConfig, run: RunDir, progress: bool) -> bool:
+    """Train (or resume) the warmup of ``run`` in ``run.warmup``; True once it is complete and
+    time is left for the run itself, else False (stopped: the run resumes it)."""
     warm_cfg = warmup_config(cfg)
     warm = RunDir(run.warmup)
     if warm.has_checkpoint():
@@ -277,12 +196,12 @@ def _warm_up(cfg: TrainConfig, run: RunDir, progress: bool) -> float | None:
     if state["iteration"] < total_iterations(warm_cfg):
         print(f"stopped while warming up ({warm.path}): continue the run with --resume "
               f"{run.path}", flush=True)
-        return None
+        return False
     if _out_of_time(cfg, state["wall_time_s"]):
         print(f"stopped: the warmup used the time budget of {cfg.run.max_minutes:g} minutes; "
               f"extend it with --resume {run.path} --minutes M", flush=True)
-        return None
-    return float(state["wall_time_s"])
+        return False
+    return True
 
 
 def _warmup_over(warm_cfg: TrainConfig, state: dict[str, Any]) -> bool:
@@ -292,6 +211,144 @@ def _warmup_over(warm_cfg: TrainConfig, state: dict[str, Any]) -> bool:
 
 
 # --- builders --------------------------------------------------------------------------------
+def open_run(
+    run: RunDir, cfg: TrainConfig | None, resume: bool, overwrite: bool
+) -> tuple[TrainConfig, dict[str, Any] | None]:
+    """The config ``train`` runs and the checkpoint it continues (None: a fresh start): a
+    resumed run's (refused if it has nothing left to do; a run whose warmup just ended has no
+    checkpoint yet), or ``cfg`` in a directory made room for."""
+    checkpoint = None
+    if resume:
+        cfg = run.config_to_resume(cfg)
+        if not (cfg.run.warmup_steps and not run.has_checkpoint()):  # (else: after its warmup)
+            checkpoint = load_last_checkpoint(run)
+            _check_left_to_do(run, cfg, checkpoint)
+    else:
+        run.make_room(overwrite)
+    assert cfg is not None
+    check_device(
+        cfg.env.device, f"device {cfg.env.device!r} of {run.path}",
+        "resume it where that device exists" if resume else "train with --device cpu",
+    )
+    return cfg, checkpoint
+
+
+@dataclass
+class RunParts:
+    """What ``train``'s loop works with, built by ``build_parts``."""
+
+    env: GraspTask
+    agent: Agent
+    update: PPOUpdate
+    state: TrainState
+    notes: list[str]
+    """Lines for the run's log: where the agent started from, the grasp starts."""
+
+
+def build_parts(
+    cfg: TrainConfig, run: RunDir, checkpoint: dict[str, Any] | None, progress: bool
+) -> RunParts:
+    """The env (with its start strategies), the agent (fresh, from another run's agent, or the
+    checkpoint's), the PPO update and the run's state, from ``checkpoint`` or fresh; writes the
+    run's config.json. A fresh run's clock starts at its warmup's time plus the minutes spent
+    recording its grasp starts: ``--minutes`` counts both."""
+    torch.set_num_threads(cfg.run.torch_threads)
+    streams = run_streams(cfg)
+    streams.seed_global_torch("actions")
+    # The env first: a config it refuses (a bin larger than the object set, a missing object)
+    # leaves no run directory behind that a corrected rerun would have to --overwrite.
+    env = make_env(cfg.env, seed=streams)
+    notes: list[str] = []
+    initial_agent, started = None, 0.0
+    agent_source = run.warmup if cfg.run.warmup_steps else cfg.run.init_agent
+    if checkpoint is None and agent_source:
+        # Checked before the grasp starts' minutes of recording; built aside from the global
+        # generator, so that the run draws what any run of its config draws.
+        with torch.random.fork_rng(devices=[]):
+            initial_agent = make_agent(env, cfg.ppo)
+        notes.append(init_agent_from(initial_agent, Path(agent_source)))
+        if set(cfg.run.init_agent_parts) != set(AGENT_PARTS):
+            notes[-1] += f", its {' and '.join(cfg.run.init_agent_parts)} only"
+        if cfg.run.warmup_steps:
+            started = float(load_last_checkpoint(RunDir(run.warmup), "cpu")["wall_time_s"])
+    if cfg.run.grasp_starts > 0:
+        starts, seconds = grasp_starts_of(cfg, run, streams, progress, fresh=checkpoint is None)
+        started += seconds
+        env.set_grasp_starts(starts, cfg.run.grasp_starts, streams.torch("grasp_choice"))
+        notes.append(f"grasp starts: {int(starts.valid.any(1).sum())} of {cfg.env.num_envs} "
+                     f"envs have one; the scripted trials lifted "
+                     f"{float(starts.lifted.float().mean()):.2f} of theirs")
+    run.write_config(cfg)
+    agent = make_agent(env, cfg.ppo)
+    if initial_agent is not None:
+        copy_agent_parts(initial_agent, agent, cfg.run.init_agent_parts)
+        if cfg.run.init_agent_unseen == "silence":
+            silenced = agent.silence_unseen_features()
+            notes[0] += f"; {silenced} observation features it never saw vary silenced"
+    update = PPOUpdate.build(agent, cfg.ppo, minibatch_size(cfg))
+    state = make_train_state(cfg, env, agent, update.optimizer)
+    if checkpoint is not None:
+        state.load_state_dict(checkpoint)
+        run.truncate_metrics(state.iteration)
+    else:
+        state.wall_time_s = started
+        if cfg.ppo.stagger_episodes:
+            env.stagger_next_reset()  # (a resumed run's envs continue where they stood)
+    env.set_lift_target(state.curriculum.targets())
+    return RunParts(env, agent, update, state, notes)
+
+
+def grasp_starts_of(
+    cfg: TrainConfig, run: RunDir, streams: RandomStreams, progress: bool, fresh: bool
+) -> tuple[GraspStarts, float]:
+    """The run's grasp starts and the seconds spent recording them: recorded once per run
+    (minutes for ten objects, with a progress bar) and saved in the run; a resumed run loads
+    them (recording again from the same streams would give the same states)."""
+    if not fresh and run.grasp_starts.is_file():
+        return GraspStarts.load(run.grasp_starts), 0.0
+    began = time.perf_counter()
+    print(f"recording the grasp starts ({cfg.run.grasp_start_rounds} scripted trials per env of "
+          f"{cfg.env.num_envs}; counted in the time budget)", flush=True)
+    with tqdm(desc="grasp starts", unit="action", disable=not progress, dynamic_ncols=True,
+              leave=False) as bar:
+        def advance(done: int, total: int) -> None:
+            bar.total = total
+            bar.update(done - bar.n)
+
+        starts = record_grasp_starts(cfg.env, streams, cfg.run.grasp_start_family,
+                                     cfg.run.grasp_start_rounds, phase=cfg.run.grasp_start_phase,
+                                     on_progress=advance)
+    starts.save(run.grasp_starts)
+    return starts, time.perf_counter() - began
+
+
+def iteration_row(
+    state: TrainState, env: GraspTask, frames: int, episodes: dict[str, float],
+    losses: dict[str, float],
+) -> tuple[dict[str, Any], dict[str, Any], list[tuple[str, float]]]:
+    """(the iteration's metrics row without its timing and action scales, the progress bar's
+    postfix, each object's lift target): the curriculum as this iteration trained."""
+    curriculum = state.curriculum
+    h_bar, target_rate = curriculum.mean_h_bar(), curriculum.rate()
+    row = {
+        "iteration": state.iteration,
+        "env_steps": state.iteration * frames,
+        "success_rate": state.episodes.success_rate(),
+        "object_success_rate": state.episodes.object_success_rate(),
+        "h_bar": h_bar,
+        "target_success_rate": target_rate,
+        **episodes,
+        **losses,
+    }
+    # No rate before the first episode ends: "nan" would read as a broken run.
+    success = f"{row['object_success_rate']:.2f}" if state.episodes.outcomes else "-"
+    postfix: dict[str, Any] = {"success": success, "it": state.iteration}
+    if curriculum.active:
+        postfix.update(h_bar=f"{h_bar:.2f}", at_h_bar=f"{target_rate:.2f}")
+    object_h_bars = list(zip(env.objects.names, curriculum.h_bars, strict=True))
+    return row, postfix, object_h_bars if curriculum.per_object else []
+
+
 def make_agent(env: GraspTask, ppo: PPOConfig) -> Agent:
     """The policy and value networks (and their normalizers) for ``env``, on its device."""
     return Agent(env.observation_spec, ppo).to(env.device)

@@ -20,6 +20,8 @@ lifted its object. An env of the training task restarts from one of its own inde
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 from tensordict import TensorDict
 
@@ -37,6 +39,7 @@ from trainer.tasks.starts import TASK_STATE_KEYS, GraspStarts
 def record_grasp_starts(
     cfg: EnvConfig, streams: RandomStreams, family_name: str = "best", rounds: int = 2,
     stride: int = 10, phase: str = "approach",
+    on_progress: Callable[[int, int], None] | None = None,
 ) -> GraspStarts:
     """Run each object's best scripted grasp (``family_name`` "best": ``BEST``; or one
     ``FAMILY[:VARIANT]`` for every object) ``rounds`` times on every env of the task built
@@ -48,7 +51,8 @@ def record_grasp_starts(
     of the closing to the end of the script, its lift included, with "lift") of the trials that
     lifted. The script runs in this task's physics (with absolute hand actions, whatever
     ``robot.hand_action``): a family's own ``load_env_config`` overrides (``Variant.env``) are
-    not applied."""
+    not applied. ``on_progress(done, total)`` is called after every scripted action with the
+    actions run so far and in all."""
     names = resolve_names(cfg.objects, cfg.data_dir)
     if family_name == "best":
         missing = [n for n in names if n not in BEST]
@@ -63,6 +67,7 @@ def record_grasp_starts(
         variant = variants(name, [variant_name or "base"])[variant_name or "base"]
         families = [(variant.script, names)]
     parts = []
+    total, done = rounds * sum(script.total_steps for script, _ in families), 0
     for script, family_objects in families:
         if isinstance(script, KeyframeGrasp):
             # The envs of the objects another family serves run it too (their trials are
@@ -82,6 +87,10 @@ def record_grasp_starts(
             states: list[tuple[torch.Tensor, torch.Tensor, TensorDict, torch.Tensor]] = []
 
             def capture(step: int, env=env, steps=steps, states=states, keys=keys) -> None:
+                nonlocal done
+                done += 1
+                if on_progress is not None:
+                    on_progress(done, total)
                 # on_step(step) runs after action `step`: the state after step + 1 actions.
                 if step + 1 in steps:
                     states.append((env.backend.qpos.clone(), env.backend.qvel.clone(),
