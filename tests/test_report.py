@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -156,39 +157,161 @@ def test_final_success_prefers_eval(runs: list[report.Run]) -> None:
 
 
 def test_summary_table(runs: list[report.Run]) -> None:
+    """Table II's layout: arms in the paper's order (com before sq), seeds that reached each
+    threshold, steps and minutes over those seeds beside the paper's Table II, env steps/s."""
     lines = report.summary_table(runs).splitlines()
     assert lines[0] == (
-        "| task | representation | reward | robot | seeds | final success | steps to 90 % (M) "
-        "| minutes to 90 % | steps to 95 % (M) | minutes to 95 % |"
-    )
-    # final: eval overall 23/30, 18/30, 21/30 -> mean 0.6889, std 0.0685
-    # 90 %: 0.5, 0.6, 0.6 M -> 0.5667 ± 0.0471; 2.5, 3.4, 3.6 min -> 3.1667 ± 0.4784
-    # 95 %: 0.7, 0.8 M -> 0.75 ± 0.05; 3.5, 4.5333 min -> 4.0167 ± 0.5167 (2 of 3 seeds)
-    assert lines[2] == (
-        "| lift | sq | sdf | ur5e | 3 | 0.69 ± 0.07 | 0.57 ± 0.05 | 3.2 ± 0.5 "
-        "| 0.75 ± 0.05 (2/3 seeds) | 4.0 ± 0.5 (2/3 seeds) |"
+        "| arm | seeds | final success | env steps/s | reached 90 % | steps to 90 % (M) "
+        "| minutes to 90 % | reached 95 % | steps to 95 % (M) | minutes to 95 % |"
     )
     # final: 16/29 = 0.5517 (eval) and 0.6 (training tail) -> 0.5759 ± 0.0241
+    # steps/s: 1 M / 300 s and 2 M / 600 s -> 3333 ± 0
+    # 90 %: one seed of two, 0.9 M and 4.5 min (paper: 149 M, 47 min); 95 %: none
+    assert lines[2] == (
+        "| com | 2 | 0.58 ± 0.02 | 3333 ± 0 | 1/2 | 0.90 (149) | 4.5 (47) "
+        "| 0/2 | not reached (550) | not reached (116) |"
+    )
+    # final: eval overall 23/30, 18/30, 21/30 -> mean 0.6889, std 0.0685
+    # steps/s: 1 M over 300, 340, 360 s -> 3017.4 ± 233.1
+    # 90 %: 0.5, 0.6, 0.6 M -> 0.5667 ± 0.0471; 2.5, 3.4, 3.6 min -> 3.1667 ± 0.4784
+    # 95 %: 0.7, 0.8 M -> 0.75 ± 0.05; 3.5, 4.5333 min -> 4.0167 ± 0.5167 (2 of 3 seeds)
     assert lines[3] == (
-        "| lift | com | sdf | ur5e | 2 | 0.58 ± 0.02 | 0.90 ± 0.00 (1/2 seeds) "
-        "| 4.5 ± 0.0 (1/2 seeds) | — | — |"
+        "| sq | 3 | 0.69 ± 0.07 | 3017 ± 233 | 3/3 | 0.57 ± 0.05 (178) | 3.2 ± 0.5 (58) "
+        "| 2/3 | 0.75 ± 0.05 (436) | 4.0 ± 0.5 (220) |"
     )
     assert len(lines) == 4
+    assert [r.steps_per_second for r in runs[:2]] == pytest.approx([1e6 / 300, 1e6 / 340])
+
+
+def test_summary_table_at_other_thresholds(runs: list[report.Run]) -> None:
+    """--thresholds 0.5,0.7 (the CPU analog): the paper has no numbers there, none in brackets."""
+    lines = report.summary_table(runs, thresholds=(0.5, 0.7)).splitlines()
+    assert lines[0].endswith(
+        "| reached 50 % | steps to 50 % (M) | minutes to 50 % | reached 70 % "
+        "| steps to 70 % (M) | minutes to 70 % |"
+    )
+    # com: 0.5 at i=4 (seed 0, 2 min) and i=19 (seed 1, 9.5 min); 0.7 at i=6 and i=20.
+    assert lines[2].endswith(
+        "| 2/2 | 1.15 ± 0.75 | 5.8 ± 3.8 | 2/2 | 1.30 ± 0.70 | 6.5 ± 3.5 |"
+    )
 
 
 def test_per_object_table(runs: list[report.Run]) -> None:
+    """Objects the paper's Table I lacks: "(—)" beside our mean ± std over the seeds."""
     lines = report.per_object_table(runs).splitlines()
-    assert lines[0] == "| object | sq | com |"
-    rows = {line.split(" | ")[0].strip("| "): line for line in lines[2:]}
-    assert list(rows) == ["bowl", "cube", "mug", "plate", "mean"]
-    assert rows["bowl"] == "| bowl | — | 0.75 |"
-    assert rows["cube"] == "| cube | 0.97 | 1.00 |"
-    # sq: (0.9667 + 0.7 + 0.4) / 3 = 0.6889; com (one evaluated seed): (1 + 0.2 + 0.2 + 0.75) / 4
-    assert rows["mean"] == "| mean | 0.69 | 0.54 |"
+    assert lines[0] == "| object | com | sq |"
+    rows = {line.split(" | ")[0].strip("| *"): line for line in lines[2:]}
+    assert list(rows) == [
+        "bowl", "cube", "mug", "plate", "mean over objects", "all 78 YCB objects (paper)",
+        "seeds evaluated",
+    ]
+    assert rows["bowl"] == "| bowl | 0.75 (—) | — (—) |"
+    # sq: 1.0, 0.9, 1.0 -> 0.9667 ± 0.0471
+    assert rows["cube"] == "| cube | 1.00 (—) | 0.97 ± 0.05 (—) |"
+    # com (one evaluated seed): (1 + 0.2 + 0.2 + 0.75) / 4 = 0.5375; sq per seed:
+    # (1 + 0.8 + 0.5) / 3, (0.9 + 0.6 + 0.3) / 3, (1 + 0.7 + 0.4) / 3 -> 0.6889 ± 0.0685;
+    # the paper's beside: its all-78 value (these objects are not in its Table I)
+    assert rows["mean over objects"] == (
+        "| **mean over objects** | **0.54** (0.95) | **0.69 ± 0.07** (0.96) |"
+    )
+    assert rows["all 78 YCB objects (paper)"] == "| all 78 YCB objects (paper) | (0.95) | (0.96) |"
+    assert rows["seeds evaluated"] == "| seeds evaluated | 1 | 3 |"
+
+
+def _table_one_runs(root: Path) -> list[Path]:
+    """bbox over two seeds, and the paper's two reward ablations, on two of its Table I objects
+    and one of ours; seed 1 of bbox was not evaluated on the cube."""
+    rates = [0.1, 0.5, 0.92]
+    ablation = [
+        ({"reward": {"kind": kind}}, kind) for kind in ("none", "com")
+    ]
+    dirs = [
+        _write_run(root, "bbox", 0, 30, rates,
+                   {"029_plate": (20, 16), "062_dice": (20, 10), "cube": (10, 5)}),
+        _write_run(root, "bbox", 1, 30, rates, {"029_plate": (20, 14), "062_dice": (20, 12)}),
+    ]
+    for env, kind in ablation:
+        dirs.append(_write_run(root, "bbox", 0, 30, rates,
+                               {"029_plate": (10, 1), "062_dice": (10, 2)}, env, f"bbox-{kind}"))
+    return dirs
+
+
+def test_table_one_cells_paper_column_and_ablations(tmp_path: Path) -> None:
+    runs = [report.load_run(d) for d in _table_one_runs(tmp_path)]
+    labels = list(report.group_labels(runs).values())
+    # The paper's arm first, then the ablations (reward com before no shaping).
+    assert labels == ["bbox", "bbox (reward com)", "bbox (no shaping)"]
+    assert [r.paper_arm for r in runs] == ["bbox", "bbox", None, None]
+    lines = report.per_object_table(runs).splitlines()
+    assert lines[0] == "| object | bbox | bbox (reward com) | bbox (no shaping) |"
+    rows = {line.split(" | ")[0].strip("| *"): line for line in lines[2:]}
+    # plate: 0.8 and 0.7 -> 0.75 ± 0.05, the paper's bbox 0.93; the ablations have no paper value
+    assert rows["029_plate"] == "| 029_plate | 0.75 ± 0.05 (0.93) | 0.10 (—) | 0.10 (—) |"
+    assert rows["062_dice"] == "| 062_dice | 0.55 ± 0.05 (0.95) | 0.20 (—) | 0.20 (—) |"
+    # one of the two seeds has the cube: its value, marked; not in the paper's table
+    assert rows["cube"] == "| cube | 0.50† (—) | — (—) | — (—) |"
+    for cell in lines[2].split(" | ")[1:]:
+        assert len(cell.strip("| ")) <= 20
+    # bbox per seed: (0.8 + 0.5 + 0.5) / 3 = 0.6, (0.7 + 0.6) / 2 = 0.65 -> 0.625 ± 0.025 (in
+    # binary a hair below both, shown 0.62 ± 0.02); beside it the paper's all-78 value, as the
+    # cube is not in its Table I
+    assert rows["mean over objects"] == (
+        "| **mean over objects** | **0.62 ± 0.02** (0.97) | **0.15** (—) | **0.15** (—) |"
+    )
+    assert rows["seeds evaluated"] == "| seeds evaluated | 2 | 1 | 1 |"
+    # Evaluated on the paper's objects only: its mean over the same objects, (0.93 + 0.95) / 2.
+    assert report.paper_overall("bbox", ["029_plate", "062_dice"]) == (
+        pytest.approx(0.94), "its mean over the same objects"
+    )
+    # Table II: no paper numbers for the ablations.
+    table = report.summary_table(runs).splitlines()
+    assert table[2].startswith("| bbox | 2 |") and "(165)" in table[2]
+    assert table[3] == (
+        "| bbox (reward com) | 1 | 0.15 | 3333 | 1/1 | 0.30 | 1.5 | 0/1 | not reached "
+        "| not reached |"
+    )
+    assert table[4].startswith("| bbox (no shaping) | 1 |")
+
+
+def test_spearman() -> None:
+    assert report.spearman([0.1, 0.2, 0.3], [1, 2, 3]) == pytest.approx(1.0)
+    assert report.spearman([0.1, 0.2, 0.3], [3, 2, 1]) == pytest.approx(-1.0)
+    # ties take the average rank: ranks (1, 2.5, 2.5) against (1, 2, 3)
+    assert report.spearman([1, 2, 2], [1, 2, 3]) == pytest.approx(np.sqrt(3) / 2)
+    assert math.isnan(report.spearman([1.0], [2.0]))
+    assert math.isnan(report.spearman([1, 1, 1], [1, 2, 3]))
+
+
+def test_rank_correlation_on_a_known_ordering(tmp_path: Path) -> None:
+    """Four arms on the plate and the dice. The paper's means over them: sq 0.945 > bbox 0.94 >
+    com 0.695 > pc32 0.525; ours: bbox 0.9 > sq 0.8 > com 0.5 > pc32 0.1. One swapped pair:
+    rho = 1 - 6 * 2 / (4 * 15) = 0.8."""
+    ours = {"com": 0.5, "bbox": 0.9, "sq": 0.8, "pc32": 0.1}
+    dirs = [
+        _write_run(tmp_path, rep, 0, 30, [0.1],
+                   {"029_plate": (10, round(10 * rate)), "062_dice": (10, round(10 * rate))})
+        for rep, rate in ours.items()
+    ]
+    # Not one of the paper's arms: left out of the ranking.
+    dirs.append(_write_run(tmp_path, "sq", 0, 30, [0.1], {"029_plate": (10, 10)},
+                           {"reward": {"kind": "none"}}, "sq-none"))
+    ranking = report.paper_ranking([report.load_run(d) for d in dirs])
+    assert ranking.arms == ("com", "bbox", "sq", "pc32")
+    assert ranking.ours == pytest.approx((0.5, 0.9, 0.8, 0.1))
+    assert ranking.paper == pytest.approx((0.695, 0.94, 0.945, 0.525))
+    assert ranking.rho == pytest.approx(0.8)
+    text = report.ranking_text(ranking)
+    assert "ρ = +0.80" in text and "its mean over the same objects" in text
+    assert "Ours: bbox 0.900 > sq 0.800 > com 0.500 > pc32 0.100" in text
+    assert "the paper's: sq 0.945 > bbox 0.940 > com 0.695 > pc32 0.525" in text
+    assert "agree on 5 (" in text
+    assert "disagree on 1 (ours bbox > sq; the paper's the reverse)" in text
+    one = report.paper_ranking([report.load_run(dirs[0])])
+    assert "needs at least two" in report.ranking_text(one)
 
 
 def test_group_labels_name_reward_and_robot_when_they_differ(runs: list[report.Run]) -> None:
-    assert set(report.group_labels(runs).values()) == {"sq", "com"}
+    assert list(report.group_labels(runs).values()) == ["com", "sq"]
     other = report.Run(
         path=Path("x"),
         representation="sq",
@@ -200,11 +323,14 @@ def test_group_labels_name_reward_and_robot_when_they_differ(runs: list[report.R
         success_rate=np.ones(1),
         per_object=None,
     )
-    labels = report.group_labels([*runs, other])
-    assert set(labels.values()) == {"sq/sdf/ur5e", "com/sdf/ur5e", "sq/none/ur5e"}
+    floating = replace(other, reward="com", robot="floating")
+    labels = report.group_labels([floating, *runs, other])
+    assert list(labels.values()) == [
+        "com", "sq", "sq (no shaping)", "sq (reward com; robot floating)"
+    ]
     assert report.resolve_group([*runs, other], "com") == ("lift", "com", "sdf", "ur5e")
-    with pytest.raises(TrainerError, match="several groups"):
-        report.resolve_group([*runs, other], "sq")
+    assert report.resolve_group([*runs, other], "sq (no shaping)") == ("lift", "sq", "none", "ur5e")
+    assert report.resolve_group([*runs, other], "sq") == ("lift", "sq", "sdf", "ur5e")
 
 
 def test_bin_runs_are_their_own_groups(run_dirs: list[Path], tmp_path: Path) -> None:
@@ -228,17 +354,15 @@ def test_bin_runs_are_their_own_groups(run_dirs: list[Path], tmp_path: Path) -> 
     groups = report.group_runs(runs)
     assert len(groups) == 6 and len(groups[("bin5", "bbox", "sdf", "ur5e")]) == 2
     assert list(report.group_labels(runs).values()) == [
-        "sq", "com", "bin5-sq", "bin5-bbox", "bin5-bbox+ctx", "bin10-bbox"
+        "com", "sq", "bin5-sq", "bin5-bbox", "bin5-bbox+ctx", "bin10-bbox"
     ]
     lines = report.summary_table(runs).splitlines()
-    assert [line.split(" | ")[:5] for line in lines[4:]] == [
-        ["| bin5", "sq", "sdf", "ur5e", "1"],
-        ["| bin5", "bbox", "sdf", "ur5e", "2"],
-        ["| bin5", "bbox+ctx", "sdf", "ur5e", "1"],
-        ["| bin10", "bbox", "sdf", "ur5e", "1"],
+    assert [line.split(" | ")[:2] for line in lines[4:]] == [
+        ["| bin5-sq", "1"], ["| bin5-bbox", "2"], ["| bin5-bbox+ctx", "1"], ["| bin10-bbox", "1"],
     ]
+    assert "(" not in lines[4]  # the paper's Table II has no bin numbers
     header = report.per_object_table(runs).splitlines()[0]
-    assert header == "| object | sq | com | bin5-sq | bin5-bbox | bin5-bbox+ctx |"
+    assert header == "| object | com | sq | bin5-sq | bin5-bbox | bin5-bbox+ctx |"
     assert report.resolve_group(runs, "sq") == ("lift", "sq", "sdf", "ur5e")
     assert report.resolve_group(runs, "bin5-bbox+ctx") == ("bin5", "bbox+ctx", "sdf", "ur5e")
     with pytest.raises(TrainerError, match="several groups"):
@@ -247,8 +371,8 @@ def test_bin_runs_are_their_own_groups(run_dirs: list[Path], tmp_path: Path) -> 
     assert gains == [("cube", pytest.approx(0.9 - 0.5))]
     report.write_report([*run_dirs, *extra], tmp_path / "out")
     text = (tmp_path / "out" / "report.md").read_text()
-    assert "6 groups" in text and "| bin5 | bbox+ctx | sdf | ur5e | 1 |" in text
-    assert "): bin5/bbox+ctx/sdf/ur5e, seed 0" in text
+    assert "in 6 arms" in text and "| bin5-bbox+ctx | 1 |" in text
+    assert "): bin5-bbox+ctx (bin5/bbox+ctx/sdf/ur5e), seed 0" in text
 
 
 def test_success_gain(runs: list[report.Run]) -> None:
@@ -282,9 +406,10 @@ def test_write_report(run_dirs: list[Path], tmp_path: Path) -> None:
             with Image.open(path) as image:
                 assert image.format == "PNG" and image.width > 0 and image.height > 0
     text = (out / "report.md").read_text()
-    assert "| lift | sq | sdf | ur5e | 3 | 0.69 ± 0.07 |" in text
-    assert "| mean | 0.69 | 0.54 |" in text
+    assert "| sq | 3 | 0.69 ± 0.07 | 3017 ± 233 |" in text
+    assert "| **mean over objects** | **0.54** (0.95) | **0.69 ± 0.07** (0.96) |" in text
     assert "(gain_sq_over_com.png)" in text and "(success_vs_time.png)" in text
+    assert "ρ = " in text  # com and sq are two of the paper's arms
     assert not list(out.glob(".*tmp*"))
 
 
@@ -293,11 +418,12 @@ def test_report_names_runs_relative_to_its_directory(
     run_dirs: list[Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, relative_args: bool
 ) -> None:
     """No absolute machine path in report.md; each run's link resolves from the report's
-    directory to that run, whether the command got absolute or relative paths."""
+    directory to that run, whether the command got absolute or relative paths, and the command
+    that made it names them relative to the directory it ran in."""
     out = tmp_path / "reports" / "latest"
     args, out_arg = run_dirs, out
+    monkeypatch.chdir(tmp_path)
     if relative_args:
-        monkeypatch.chdir(tmp_path)
         args = [d.relative_to(tmp_path) for d in run_dirs]
         out_arg = out.relative_to(tmp_path)
     report.write_report(args, out_arg)
@@ -305,6 +431,9 @@ def test_report_names_runs_relative_to_its_directory(
     assert str(tmp_path) not in text and str(tmp_path.resolve()) not in text
     listed = [line for line in text.splitlines() if line.startswith("- [`")]
     assert len(listed) == len(run_dirs)
+    assert "Made by this command, run in `../..` (relative to this folder)" in text
+    runs = " ".join(f"runs/{d.name}" for d in run_dirs)
+    assert f"\n    trainer report {runs} --out reports/latest\n" in text
     for line, run_dir in zip(listed, run_dirs, strict=True):
         link = line.split("](", 1)[1].split(")", 1)[0]
         assert not Path(link).is_absolute() and link == f"../../runs/{run_dir.name}"
@@ -378,7 +507,7 @@ def test_runs_that_differ_in_more_than_the_seed_are_not_averaged(tmp_path: Path)
     assert {k[1]: len(v) for k, v in groups.items()} == {
         "bbox [noslip_iterations=0]": 2, "bbox [noslip_iterations=5]": 1,
     }
-    assert "| lift | bbox [noslip_iterations=5] | sdf | ur5e | 1 |" in report.summary_table(runs)
+    assert "| bbox [noslip_iterations=5] | 1 |" in report.summary_table(runs)
     assert len(report.group_runs(runs[:2])) == 1
 
 
@@ -396,3 +525,97 @@ def test_runs_from_before_the_held_criterion_are_not_averaged_with_later_ones(
     assert {k[1]: len(v) for k, v in groups.items()} == {
         "bbox [hold_tips=0]": 1, "bbox [hold_tips=2]": 1,
     }
+
+
+def _move_eval(run_dir: Path, name: str, criterion: str | None = None) -> None:
+    """Rename a run's eval/ to ``name`` (as ``trainer eval --out NAME`` writes it), with a
+    table.md stating ``criterion`` as trainer eval does."""
+    (run_dir / "eval").rename(run_dir / name)
+    if criterion is not None:
+        (run_dir / name / "table.md").write_text(f"Success per target object.\n\nSuccess: "
+                                                 f"{criterion}\n\n| object |\n")
+
+
+def test_report_options_eval_folder_thresholds_and_allowed_differences(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``--eval eval-it350`` reads that folder (and its criterion), ``--thresholds`` sets Table
+    II's columns, ``--allow-differ run.max_minutes`` keeps two seeds with different budgets one
+    arm; the command recorded at the top carries the options."""
+    monkeypatch.chdir(tmp_path)
+    held = "the target lifted by 0.2 m while held (2 or more fingertip pads within 0.02 m of it)."
+    dirs = _table_one_runs(tmp_path / "runs")[:2]
+    for path, minutes in zip(dirs, (150.0, 155.0), strict=True):
+        _move_eval(path, "eval-it350", held)
+        config = json.loads((path / "config.json").read_text())
+        config["run"]["max_minutes"] = minutes
+        (path / "config.json").write_text(json.dumps(config))
+    runs = [report.load_run(d, "eval-it350") for d in dirs]
+    assert runs[0].eval_criterion == held.removeprefix("Success: ")
+    assert report.load_run(dirs[0]).per_object is None  # no eval/ any more
+
+    # The budgets differ: two arms, unless allowed.
+    report.write_report(dirs, "split", eval_dir="eval-it350")
+    text = Path("split/report.md").read_text()
+    assert "bbox [max_minutes=150.0] (1), bbox [max_minutes=155.0] (1)" in text
+    assert "`--allow-differ FIELD,...` makes them one arm" in text
+    with pytest.raises(TrainerError, match="run.max_minuts: no run's config.json"):
+        report.write_report(dirs, "typo", allow_differ=["run.max_minuts"])
+
+    report.write_report(dirs, "rep", eval_dir="eval-it350", thresholds=(0.5, 0.7),
+                        allow_differ=["run.max_minutes"])
+    text = Path("rep/report.md").read_text()
+    assert (
+        "\n    trainer report runs/bbox_s0 runs/bbox_s1 --out rep --eval eval-it350 --thresholds "
+        "0.5,0.7 --allow-differ run.max_minutes\n"
+    ) in text
+    assert "2 runs in 1 arm: bbox (2)." in text
+    assert "| 029_plate | 0.75 ± 0.05 (0.93) |" in text
+    assert f"Success in these evaluations: {held}" in text
+    # final success, successes / episodes: 31/50 and 26/40 -> 0.635 ± 0.015; rates 0.1, 0.5,
+    # 0.92 at 100 k steps and 30 s each: 0.5 at 0.2 M (1 min), 0.7 at 0.3 M (1.5 min)
+    assert (
+        "| bbox | 2 | 0.64 ± 0.02 | 3333 ± 0 | 2/2 | 0.20 ± 0.00 | 1.0 ± 0.0 | 2/2 | 0.30 ± 0.00 "
+        "| 1.5 ± 0.0 |"
+    ) in text
+
+    # The default folder is absent: say which folders there are instead of Table I.
+    report.write_report(dirs, "none", allow_differ=["run.max_minutes"])
+    text = Path("none/report.md").read_text()
+    assert "No run has `eval/per_object.csv` (evaluation folders in the runs: `eval-it350`)" in text
+    assert "## Ranking" not in text and "| bbox | 2 |" in text
+
+    for bad, message in (((), "give success rates"), ((0.5, 1.5), "give success rates"),
+                         ((0.5, 0.5), "each at most once")):
+        with pytest.raises(TrainerError, match=message):
+            report.write_report(dirs, "bad", thresholds=bad)
+    with pytest.raises(TrainerError, match="name of a folder inside the run directories"):
+        report.write_report(dirs, "bad", eval_dir="../elsewhere")
+    assert not Path("bad").exists()
+
+
+def test_report_command_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:  # noqa: ANN001
+    import sys
+
+    import trainer.cli
+
+    monkeypatch.chdir(tmp_path)
+    dirs = _table_one_runs(tmp_path / "runs")
+    _move_eval(dirs[0], "eval-x")
+
+    def invoke(*argv: str) -> tuple[int, str]:
+        monkeypatch.setattr(sys, "argv", ["trainer", "report", *argv])
+        try:
+            trainer.cli.main()
+            code = 0
+        except SystemExit as exc:
+            code = int(exc.code or 0)
+        out = capsys.readouterr()
+        return code, out.out + out.err
+
+    code, out = invoke("runs/bbox_s0", "--eval", "eval-x", "--thresholds", "0.5,0.7")
+    assert code == 0, out
+    text = Path("report/report.md").read_text()
+    assert "--eval eval-x --thresholds 0.5,0.7" in text and "| 029_plate | 0.80 (0.93) |" in text
+    code, out = invoke("runs/bbox_s0", "--thresholds", "0.5,high")
+    assert code != 0 and "--thresholds '0.5,high': give comma-separated success rates" in out

@@ -335,7 +335,7 @@ def test_bin_eval_counts_episodes_per_target(
                                 monkeypatch, capsys)
     assert code == 0, err
     report = (bin_run.parent / "rep" / "report.md").read_text()
-    assert "| bin5 | bbox | sdf | ur5e | 1 |" in report
+    assert "| bin5-bbox | 1 |" in report
     assert "| object | bin5-bbox |" in report
 
 

@@ -635,16 +635,37 @@ def eval_cmd(
               show_default=True)
 @click.option("--compare", default=None, help="BASE,OTHER: per-object gain plot of OTHER over "
               "BASE (representation names or group labels).")
-def report(run_dirs: tuple[Path, ...], out: Path, compare: str | None) -> None:
-    """Tables (final success, steps and minutes to 90 % / 95 %) and plots over runs and seeds."""
+@click.option("--eval", "eval_dir", default="eval", show_default=True,
+              help="The folder in each run directory to read the evaluation from (trainer eval "
+              "--out NAME), e.g. eval-it350.")
+@click.option("--thresholds", default="0.9,0.95", show_default=True,
+              help="Success rates for Table II's steps and minutes (the paper's 0.9,0.95; e.g. "
+              "0.5,0.7 at CPU scale).")
+@click.option("--allow-differ", default="",
+              help="Config fields the seeds of one arm may differ in besides the seed and how "
+              "they ran, comma-separated (e.g. run.max_minutes): otherwise such runs are split.")
+def report(
+    run_dirs: tuple[Path, ...], out: Path, compare: str | None, eval_dir: str, thresholds: str,
+    allow_differ: str,
+) -> None:
+    """report.md with the paper's Table I (success per object, ours beside the paper's), the
+    rank correlation with its ordering, Table II (steps and minutes to THRESHOLDS, env steps per
+    second) and learning curves, over runs and seeds."""
     pair = tuple(compare.split(",")) if compare else None
     if pair is not None and len(pair) != 2:
         raise TrainerError("--compare takes two labels: BASE,OTHER (e.g. com,sq)")
+    try:
+        rates = tuple(float(t) for t in thresholds.split(","))
+    except ValueError:
+        raise TrainerError(
+            f"--thresholds {thresholds!r}: give comma-separated success rates, e.g. 0.5,0.7"
+        ) from None
+    fields = tuple(f.strip() for f in allow_differ.split(",") if f.strip())
     for path in run_dirs:
         _run_dir(path)
     from trainer.report import write_report
 
-    for path in write_report(list(run_dirs), out, pair):
+    for path in write_report(list(run_dirs), out, pair, eval_dir, rates, fields):
         click.echo(str(path))
 
 

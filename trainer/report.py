@@ -7,7 +7,9 @@ A run directory is read as the trainer writes it::
     RUN_DIR/metrics.csv            one row per PPO iteration: env_steps, wall_time_s,
                                    object_success_rate (the mean over objects; success_rate, over
                                    all ended episodes, in runs logged before it existed)
-    RUN_DIR/eval/per_object.csv    optional (``trainer eval``): object, episodes, successes
+    RUN_DIR/eval/per_object.csv    optional (``trainer eval``): object, episodes, successes;
+                                   ``eval`` or another folder of ``trainer eval --out`` (the
+                                   report's ``eval_dir``), with the success criterion in table.md
 
 Runs are grouped by (task, representation, reward kind, robot kind), where the task is ``lift`` or
 ``binN`` (N objects per bin) and the representation gains ``+ctx`` when the policy also sees the
@@ -20,7 +22,13 @@ the difference, e.g. ``bbox [noslip_iterations=5]``. The runs of a group are the
 differ by seed, and every table cell is a mean ± std (ddof = 0) over them. Units: env steps are
 counted over all parallel environments, wall time is seconds in the data and minutes in tables
 and plots, success rates are fractions in [0, 1].
-Group labels: ``sq`` (lift), ``bin5-bbox``, ``bin5-bbox+ctx``.
+
+Groups are the arms of the paper's comparison: ordered as its Table I (``PAPER_ORDER``), then
+the reward ablations (the paper's are bbox runs with reward kind ``com`` and ``none``), then any
+other group in the order the runs came. Labels: ``sq`` (lift), ``bbox (reward com)``, ``bbox (no
+shaping)``, ``bin5-bbox``, ``bin5-bbox+ctx``, and ``(robot floating)`` for another robot than the
+paper's. The paper's numbers (``PAPER_TABLE_I``, ``PAPER_TABLE_II``) stand beside the arms that
+are its own: a lift run, no context, the SDF reward, the UR5e.
 """
 
 from __future__ import annotations
@@ -29,8 +37,9 @@ import csv
 import json
 import math
 import os
+import shlex
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -51,8 +60,59 @@ NOT_THE_EXPERIMENT = frozenset({
 })
 """Config fields that seeds of one experiment may differ in: the seed, and how and where it ran."""
 THRESHOLDS = (0.9, 0.95)
+"""Table II's success rates (the paper's); ``trainer report --thresholds`` picks others."""
 CURVE_POINTS = 200
 _DASH = "—"
+
+PAPER_ORDER = ("com", "sdf", "bbox", "sq", "pc32", "pc128", "pc512")
+"""The representations in the order of the paper's Table I and II columns / rows."""
+_REWARD_NOTES = {"com": "reward com", "none": "no shaping"}
+"""How a label names a reward kind other than the paper's ``sdf``; ablations ordered thus."""
+
+_P = PAPER_ORDER
+PAPER_TABLE_I: dict[str, dict[str, tuple[float, float]]] = {
+    # Table I of the paper ("Variations in lifting success rates for different representations of
+    # object geometry", label object_specific_success_rates): final test success, mean and std
+    # over seeds, columns COM, SDF, BBox, SQ, PC-32, PC-128, PC-512 (PAPER_ORDER).
+    name: dict(zip(_P, cells, strict=True))
+    for name, cells in {
+        "007_tuna_fish_can": ((0.99, 0.0), *[(1.0, 0.0)] * 6),
+        "013_apple": ((1.0, 0.0),) * 7,
+        "029_plate": ((0.74, 0.14), (0.95, 0.0), (0.93, 0.02), (0.95, 0.04), (0.5, 0.39),
+                      (0.94, 0.03), (0.94, 0.04)),
+        "032_knife": ((0.77, 0.07), (0.81, 0.07), (0.96, 0.02), (0.85, 0.1), (0.71, 0.02),
+                      (0.9, 0.02), (0.79, 0.06)),
+        "053_mini_soccer_ball": ((1.0, 0.0),) * 7,
+        "062_dice": ((0.65, 0.3), (0.85, 0.08), (0.95, 0.02), (0.94, 0.01), (0.55, 0.07),
+                     (0.86, 0.0), (0.6, 0.12)),
+        "065-a_cups": ((0.99, 0.0), *[(1.0, 0.0)] * 6),
+        "072-a_toy_airplane": ((0.93, 0.02), (0.99, 0.01), (0.99, 0.01), (0.97, 0.03),
+                               (0.95, 0.01), (0.99, 0.0), (0.96, 0.02)),
+        "073-g_lego_duplo": ((0.9, 0.01), (0.97, 0.01), (0.99, 0.0), (0.96, 0.02), (0.95, 0.01),
+                             (0.99, 0.0), (0.98, 0.01)),
+        "077_rubiks_cube": ((1.0, 0.0),) * 7,
+    }.items()
+}
+PAPER_ALL_OBJECTS: dict[str, tuple[float, float]] = dict(zip(_P, (
+    # Table I's last row, "All 78 YCB objects".
+    (0.95, 0.02), (0.96, 0.01), (0.97, 0.01), (0.96, 0.02), (0.92, 0.03), (0.97, 0.0),
+    (0.95, 0.02),
+), strict=True))
+PAPER_TABLE_II: dict[str, dict[float, tuple[tuple[float, float], tuple[float, float]]]] = {
+    # Table II of the paper ("Sample efficiency of different object representations",
+    # label sample_efficiency_of_object_representations): per threshold, (env steps in
+    # millions, runtime in minutes), each (mean, std) over seeds.
+    rep: {0.9: (cells[0], cells[1]), 0.95: (cells[2], cells[3])}
+    for rep, cells in zip(_P, (
+        ((149, 30), (47, 9), (550, 161), (116, 34)),
+        ((134, 5), (72, 3), (276, 51), (152, 28)),
+        ((165, 8), (69, 3), (274, 44), (127, 23)),
+        ((178, 18), (58, 6), (436, 52), (220, 26)),
+        ((196, 15), (52, 4), (474, 170), (178, 63)),
+        ((173, 4), (47, 2), (232, 1), (65, 1)),
+        ((219, 19), (62, 6), (277, 12), (87, 4)),
+    ), strict=True)
+}
 
 
 def task_name(task: str, bin_objects: int | None = None) -> str:
@@ -108,6 +168,9 @@ class Run:
     context: str = "none"
     settings: dict[str, str] = field(default_factory=dict)
     """Every config field but ``NOT_THE_EXPERIMENT``'s: dotted name -> JSON value."""
+    eval_criterion: str | None = None
+    """The success criterion of the evaluation (its table.md's ``Success:`` line without the
+    prefix, e.g. "the target lifted by 0.2 m ..."), if stated."""
 
     @property
     def has_curriculum(self) -> bool:
@@ -127,21 +190,36 @@ class Run:
         """The run's task and view, e.g. ``sq`` or ``bin5-bbox+ctx`` (see ``task_label``)."""
         return task_label(self.task, self.representation, self.bin_objects, self.context)
 
+    @property
+    def paper_arm(self) -> str | None:
+        """The representation when the run is one of the paper's Table I / II arms (lift, no
+        context, the SDF reward, the UR5e), else None."""
+        own = (self.task, self.context, self.reward, self.robot) == ("lift", "none", "sdf", "ur5e")
+        return self.representation if own and self.representation in PAPER_ORDER else None
+
+    @property
+    def steps_per_second(self) -> float:
+        """Env steps per second of training wall time, over the whole run (its last row)."""
+        seconds = float(self.wall_time_s[-1])
+        return float(self.env_steps[-1]) / seconds if seconds > 0 else math.nan
+
 
 # --------------------------------------------------------------------------------------- loading
 
 
-def load_run(path: str | Path) -> Run:
-    """Read a run directory; raise TrainerError naming the file and the fix if it is unusable."""
+def load_run(path: str | Path, eval_dir: str = "eval") -> Run:
+    """Read a run directory, its evaluation from the folder ``eval_dir`` in it (``trainer eval
+    --out``); raise TrainerError naming the file and the fix if it is unusable."""
     path = Path(path)
     if not path.is_dir():
         raise TrainerError(
             f"{path}: not a directory; pass a run directory written by trainer run"
         )
+    _check_eval_dir(eval_dir)
     run = RunDir(path)
     config = _read_config(run.config)
     env_steps, wall_time_s, success_rate, h_bar, target_rate = _read_metrics(run.metrics)
-    per_object_path = path / "eval" / "per_object.csv"
+    per_object_path = path / eval_dir / "per_object.csv"
     per_object = _read_per_object(per_object_path) if per_object_path.is_file() else None
     return Run(
         path=path,
@@ -159,7 +237,30 @@ def load_run(path: str | Path) -> Run:
         bin_objects=config["bin_objects"],
         context=config["context"],
         settings=config["settings"],
+        eval_criterion=_read_criterion(path / eval_dir / "table.md") if per_object else None,
     )
+
+
+def _check_eval_dir(eval_dir: str) -> None:
+    parts = Path(eval_dir).parts
+    if not parts or Path(eval_dir).is_absolute() or ".." in parts:
+        raise TrainerError(
+            f"eval folder {eval_dir!r}: give the name of a folder inside the run directories "
+            "(as trainer eval --out names it), e.g. eval or eval-it350"
+        )
+
+
+def _read_criterion(path: Path) -> str | None:
+    """The ``Success: ...`` line that ``trainer eval`` writes into table.md, without the
+    prefix; None when there is no such file or line (evaluations before it stated one)."""
+    try:
+        lines = path.read_text().splitlines() if path.is_file() else []
+    except (OSError, UnicodeDecodeError):
+        return None
+    for line in lines:
+        if line.startswith("Success: "):
+            return line.removeprefix("Success: ").strip()
+    return None
 
 
 def _read_config(path: Path) -> dict[str, Any]:
@@ -378,8 +479,8 @@ def final_success(run: Run, last_fraction: float = 0.1) -> float:
 
 
 def group_runs(runs: Iterable[Run]) -> dict[GroupKey, list[Run]]:
-    """Runs by group key, groups in order of first appearance, runs within a group by seed.
-    Runs of one ``Run.group`` whose settings differ are split: their representation gains
+    """Runs by group key, groups in the paper's order (``arm_order``), runs within a group by
+    seed. Runs of one ``Run.group`` whose settings differ are split: their representation gains
     `` [name=value, ...]`` for every setting that differs (see the module docstring)."""
     by_group: dict[GroupKey, list[Run]] = {}
     for run in runs:
@@ -396,16 +497,33 @@ def group_runs(runs: Iterable[Run]) -> dict[GroupKey, list[Run]]:
             groups.setdefault(split, []).append(run)
     for members in groups.values():
         members.sort(key=lambda r: (r.seed is None, r.seed if r.seed is not None else 0))
-    return groups
+    # sorted() is stable: groups of one rank keep the order in which the runs came.
+    return dict(sorted(groups.items(), key=lambda item: arm_order(item[1][0])))
+
+
+def arm_order(run: Run) -> tuple[int, int]:
+    """Where a run's group stands in the tables: the paper's arms in ``PAPER_ORDER``, then its
+    representations with the ablated rewards (``com``, then ``none``), any other reward, and
+    last everything else (bin tasks, context, another robot)."""
+    if (run.task, run.context, run.robot) != ("lift", "none", "ur5e") or (
+        run.representation not in PAPER_ORDER
+    ):
+        return len(_REWARD_NOTES) + 2, 0
+    rewards = ("sdf", *_REWARD_NOTES)
+    tier = rewards.index(run.reward) if run.reward in rewards else len(rewards)
+    return tier, PAPER_ORDER.index(run.representation)
 
 
 def group_labels(runs: Iterable[Run]) -> dict[GroupKey, str]:
-    """A column label per group: the task and view alone (``sq``, ``bin5-bbox``,
-    ``bin5-bbox+ctx``) when the groups share reward and robot, else ``label/reward/robot``."""
-    keys = list(group_runs(runs))
-    if len({key[2:] for key in keys}) <= 1:
-        return {key: _label(key) for key in keys}
-    return {key: "/".join((_label(key), *key[2:])) for key in keys}
+    """A label per group: the task and view (``sq``, ``bin5-bbox``, ``bin5-bbox+ctx``), with
+    what differs from the paper's reward and robot in brackets: ``bbox (reward com)``, ``bbox
+    (no shaping)`` (reward kind ``none``), ``bbox (robot floating)``."""
+    labels = {}
+    for key in group_runs(runs):
+        notes = [] if key[2] == "sdf" else [_REWARD_NOTES.get(key[2], f"reward {key[2]}")]
+        notes += [] if key[3] == "ur5e" else [f"robot {key[3]}"]
+        labels[key] = _label(key) + (f" ({'; '.join(notes)})" if notes else "")
+    return labels
 
 
 def resolve_group(runs: Sequence[Run], name: str) -> GroupKey:
@@ -424,61 +542,102 @@ def resolve_group(runs: Sequence[Run], name: str) -> GroupKey:
     raise TrainerError(f"no group named {name!r}; the runs' groups are: {known}")
 
 
+def _seed_rates(members: Sequence[Run]) -> list[dict[str, float]]:
+    """Per evaluated run of a group: object -> successes / episodes (objects with episodes)."""
+    return [
+        {name: s / e for name, (e, s) in run.per_object.items() if e}
+        for run in members
+        if run.per_object is not None
+    ]
+
+
 def _per_object_rates(members: Sequence[Run]) -> dict[str, float]:
     """Per object, the mean over seeds of each seed's successes / episodes (evaluated runs only)."""
     rates: dict[str, list[float]] = {}
-    for run in members:
-        for name, (episodes, successes) in (run.per_object or {}).items():
-            if episodes:
-                rates.setdefault(name, []).append(successes / episodes)
+    for seed in _seed_rates(members):
+        for name, rate in seed.items():
+            rates.setdefault(name, []).append(rate)
     return {name: float(np.mean(values)) for name, values in rates.items()}
+
+
+def overall_success(members: Sequence[Run]) -> list[float]:
+    """Per evaluated run of a group, its mean success over the objects it was evaluated on (each
+    object weighs the same, as in the paper's Table I); the mean of these is Table I's overall."""
+    return [float(np.mean(list(seed.values()))) for seed in _seed_rates(members) if seed]
+
+
+def paper_overall(representation: str, objects: Iterable[str]) -> tuple[float, str]:
+    """The paper's overall success of a representation to set beside ours on ``objects``: its
+    Table I mean over the same objects where it lists them all, else its all-78-objects value.
+    Returns (value, which of the two it is in words)."""
+    objects = sorted(set(objects))
+    if objects and all(name in PAPER_TABLE_I for name in objects):
+        values = [PAPER_TABLE_I[name][representation][0] for name in objects]
+        return float(np.mean(values)), "its mean over the same objects"
+    return PAPER_ALL_OBJECTS[representation][0], "its value over all 78 objects"
 
 
 # --------------------------------------------------------------------------------------- tables
 
 
-def _mean_std(values: Sequence[float], digits: int) -> str:
-    """``mean ± std`` over the finite values; "(k/n seeds)" appended when some are missing."""
+def _mean_std(values: Sequence[float], fmt: str = ".2f") -> str:
+    """``mean ± std`` (ddof 0) over the finite values, the mean alone for one, "—" for none."""
     finite = np.array([v for v in values if math.isfinite(v)], dtype=np.float64)
     if finite.size == 0:
         return _DASH
-    text = f"{finite.mean():.{digits}f} ± {finite.std(ddof=0):.{digits}f}"
-    if finite.size < len(values):
-        text += f" ({finite.size}/{len(values)} seeds)"
-    return text
+    if finite.size == 1:
+        return format(finite[0], fmt)
+    return f"{format(finite.mean(), fmt)} ± {format(finite.std(ddof=0), fmt)}"
 
 
 def _percent(threshold: float) -> str:
     return f"{threshold * 100:g} %"
 
 
+def _paper_note(value: float | None, fmt: str) -> str:
+    return f" ({_DASH if value is None else format(value, fmt)})"
+
+
 def summary_table(
     runs: Sequence[Run], thresholds: Sequence[float] = THRESHOLDS, last_fraction: float = 0.1
 ) -> str:
-    """Markdown table, one line per group (task ``lift`` or ``binN``, representation with
-    ``+ctx`` when the policy sees the context, reward, robot): final success and env steps (M) /
-    minutes to reach each threshold, as mean ± std over seeds. Seeds that never reach a
-    threshold are left out of its mean (the cell says how many did); "—" where none did."""
-    header = ["task", "representation", "reward", "robot", "seeds", "final success"]
+    """Markdown table in the layout of the paper's Table II, one line per group (arm, in the
+    paper's order): seeds, final success (``final_success``), env steps per second of training
+    wall time, and per threshold how many seeds reached it, and the env steps (M) and minutes to
+    it, mean ± std over the seeds that did ("not reached" where none did). In brackets beside
+    steps and minutes the paper's Table II mean, for its arms at its thresholds (90 %, 95 %)."""
+    header = ["arm", "seeds", "final success", "env steps/s"]
     for threshold in thresholds:
-        header += [f"steps to {_percent(threshold)} (M)", f"minutes to {_percent(threshold)}"]
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        p = _percent(threshold)
+        header += [f"reached {p}", f"steps to {p} (M)", f"minutes to {p}"]
+    lines = ["| " + " | ".join(header) + " |", "|---|" + "---:|" * (len(header) - 1)]
+    labels = group_labels(runs)
     for key, members in group_runs(runs).items():
-        cells = [*key, str(len(members))]
-        cells.append(_mean_std([final_success(r, last_fraction) for r in members], 2))
+        arm = members[0].paper_arm
+        cells = [labels[key], str(len(members))]
+        cells.append(_mean_std([final_success(r, last_fraction) for r in members]))
+        cells.append(_mean_std([r.steps_per_second for r in members], ".0f"))
         for threshold in thresholds:
             reached = [steps_to_reach(r, threshold) for r in members]
-            cells.append(_mean_std([steps / 1e6 for steps, _ in reached], 2))
-            cells.append(_mean_std([seconds / 60 for _, seconds in reached], 1))
+            hits = sum(math.isfinite(steps) for steps, _ in reached)
+            paper = PAPER_TABLE_II.get(arm or "", {}).get(round(threshold, 6))
+            steps = _mean_std([s / 1e6 for s, _ in reached]) if hits else "not reached"
+            minutes = _mean_std([t / 60 for _, t in reached], ".1f") if hits else "not reached"
+            if paper is not None:
+                steps += _paper_note(paper[0][0], "g")
+                minutes += _paper_note(paper[1][0], "g")
+            cells += [f"{hits}/{len(members)}", steps, minutes]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
 def per_object_table(runs: Sequence[Run]) -> str:
-    """Markdown table like the paper's Table I: one row per object, one column per group with
-    eval data, each cell the mean over that group's seeds of the object's success rate; "—" where
-    a group has no episodes of the object. The last row is the mean of each column's cells (every
-    object weighs the same, whatever its episode count)."""
+    """Markdown table in the layout of the paper's Table I: one row per object, one column per
+    group with eval data (arms in the paper's order), each cell the mean ± std over that group's
+    evaluated seeds of the object's success rate, then in brackets the paper's Table I value
+    ("—" where it has none). "†" marks a cell some evaluated seeds lack the object in. Then
+    the overall row (per seed the mean over its objects, mean ± std over seeds, beside the
+    paper's ``paper_overall``), the paper's all-78-objects row, and the seeds evaluated."""
     labels = group_labels(runs)
     groups = {
         key: members
@@ -486,19 +645,143 @@ def per_object_table(runs: Sequence[Run]) -> str:
         if any(r.per_object is not None for r in members)
     }
     if not groups:
-        raise TrainerError("no run has eval/per_object.csv; run trainer eval on the runs first")
-    rates = {key: _per_object_rates(members) for key, members in groups.items()}
-    objects = sorted(set().union(*(r.keys() for r in rates.values())))
+        raise TrainerError(
+            "no run has an evaluation (per_object.csv); run trainer eval on the runs first"
+        )
+    seeds = {key: _seed_rates(members) for key, members in groups.items()}
+    arms = {key: members[0].paper_arm for key, members in groups.items()}
+    objects = sorted(set().union(*(rates for per_seed in seeds.values() for rates in per_seed)))
     lines = [
         "| object | " + " | ".join(labels[key] for key in groups) + " |",
-        "|" + "---|" * (len(groups) + 1),
+        "|---|" + "---:|" * len(groups),
     ]
     for name in objects:
-        cells = [f"{rates[key][name]:.2f}" if name in rates[key] else _DASH for key in groups]
+        cells = []
+        for key, per_seed in seeds.items():
+            values = [rates[name] for rates in per_seed if name in rates]
+            paper = PAPER_TABLE_I.get(name, {}).get(arms[key] or "")
+            mark = "†" if values and len(values) < len(per_seed) else ""
+            cells.append(_mean_std(values) + mark + _paper_note(paper[0] if paper else None, ".2f"))
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    means = [f"{np.mean(list(r.values())):.2f}" if r else _DASH for r in rates.values()]
-    lines.append("| mean | " + " | ".join(means) + " |")
+    overall = []
+    for key, members in groups.items():
+        arm = arms[key]
+        columns = set().union(*seeds[key])
+        paper = paper_overall(arm, columns)[0] if arm else None
+        overall.append(f"**{_mean_std(overall_success(members))}**" + _paper_note(paper, ".2f"))
+    lines.append("| **mean over objects** | " + " | ".join(overall) + " |")
+    every = [
+        _paper_note(PAPER_ALL_OBJECTS[a][0] if a else None, ".2f").strip() for a in arms.values()
+    ]
+    lines.append("| all 78 YCB objects (paper) | " + " | ".join(every) + " |")
+    lines.append("| seeds evaluated | " + " | ".join(str(len(s)) for s in seeds.values()) + " |")
     return "\n".join(lines) + "\n"
+
+
+def spearman(xs: Sequence[float], ys: Sequence[float]) -> float:
+    """Spearman's rank correlation: the Pearson correlation of the ranks, ties given their
+    average rank; NaN for fewer than two pairs or when one side is all ties."""
+    if len(xs) != len(ys):
+        raise TrainerError(f"spearman needs pairs, got {len(xs)} and {len(ys)} values")
+    if len(xs) < 2:
+        return math.nan
+    from scipy.stats import rankdata
+
+    rx, ry = rankdata(xs), rankdata(ys)
+    if np.ptp(rx) == 0 or np.ptp(ry) == 0:
+        return math.nan
+    return float(np.corrcoef(rx, ry)[0, 1])
+
+
+@dataclass(frozen=True)
+class Ranking:
+    """Our ordering of the paper's representations by overall success against the paper's:
+    ``arms`` in the paper's order, ``ours`` (Table I's mean over objects, mean over seeds) and
+    ``paper`` (``paper_overall`` on the same objects), Spearman's ``rho`` between them, and
+    ``basis`` saying which paper value was used."""
+
+    arms: tuple[str, ...]
+    ours: tuple[float, ...]
+    paper: tuple[float, ...]
+    rho: float
+    basis: str
+    left_out: tuple[str, ...] = ()
+    """Representations in several groups (e.g. split by a setting), not ranked."""
+
+
+def paper_ranking(runs: Sequence[Run]) -> Ranking:
+    """The ``Ranking`` over the paper's arms that were evaluated (one group each)."""
+    by_arm: dict[str, list[list[Run]]] = {}
+    for members in group_runs(runs).values():
+        arm = members[0].paper_arm
+        if arm is not None and overall_success(members):
+            by_arm.setdefault(arm, []).append(members)
+    arms = tuple(a for a in PAPER_ORDER if len(by_arm.get(a, ())) == 1)
+    ours, paper, bases = [], [], set()
+    for arm in arms:
+        members = by_arm[arm][0]
+        ours.append(float(np.mean(overall_success(members))))
+        value, basis = paper_overall(arm, set().union(*_seed_rates(members)))
+        paper.append(value)
+        bases.add(basis)
+    return Ranking(
+        arms=arms, ours=tuple(ours), paper=tuple(paper), rho=spearman(ours, paper),
+        basis=" / ".join(sorted(bases)),
+        left_out=tuple(a for a in PAPER_ORDER if len(by_arm.get(a, ())) > 1),
+    )
+
+
+def _ordering(arms: Sequence[str], values: Sequence[float]) -> str:
+    """``bbox 0.810 > sq 0.600 = com 0.600``, best first."""
+    order = sorted(range(len(arms)), key=lambda i: -values[i])
+    text = f"{arms[order[0]]} {values[order[0]]:.3f}"
+    for prev, i in zip(order, order[1:], strict=False):
+        relation = "=" if math.isclose(values[i], values[prev]) else ">"
+        text += f" {relation} {arms[i]} {values[i]:.3f}"
+    return text
+
+
+def ranking_text(ranking: Ranking) -> str:
+    """Sentences on the ranking: rho, both orderings, and the pairs they agree and disagree on."""
+    left = (
+        f" Left out, being in several groups: {', '.join(ranking.left_out)}."
+        if ranking.left_out else ""
+    )
+    if len(ranking.arms) < 2:
+        have = ", ".join(ranking.arms) or "none"
+        return (
+            "The rank correlation with the paper needs at least two of its representations "
+            f"(lift, SDF reward) evaluated; here {have}.{left}"
+        )
+    rho = "undefined (all tied on one side)" if math.isnan(ranking.rho) else f"{ranking.rho:+.2f}"
+    agree, disagree, tied = [], [], []
+    for i in range(len(ranking.arms)):
+        for j in range(i + 1, len(ranking.arms)):
+            a, b = ranking.arms[i], ranking.arms[j]
+            ours = ranking.ours[i] - ranking.ours[j]
+            paper = ranking.paper[i] - ranking.paper[j]
+            ours_tie = math.isclose(ranking.ours[i], ranking.ours[j])
+            paper_tie = math.isclose(ranking.paper[i], ranking.paper[j])
+            if ours_tie or paper_tie:
+                side = "both" if ours_tie and paper_tie else "ours" if ours_tie else "the paper"
+                tied.append(f"{a} = {b} ({side})")
+            elif (ours > 0) == (paper > 0):
+                agree.append(f"{a} > {b}" if ours > 0 else f"{b} > {a}")
+            else:
+                disagree.append(f"{a} > {b}" if ours > 0 else f"{b} > {a}")
+    pairs = len(ranking.arms) * (len(ranking.arms) - 1) // 2
+    text = (
+        f"Spearman's rank correlation of our ordering of the {len(ranking.arms)} representations "
+        f"by overall success (Table I's mean over objects) with the paper's ({ranking.basis}): "
+        f"ρ = {rho}. Ours: {_ordering(ranking.arms, ranking.ours)}; the "
+        f"paper's: {_ordering(ranking.arms, ranking.paper)}. "
+    )
+    text += f"Of the {pairs} pairs, the orderings agree on {len(agree)}"
+    text += f" ({', '.join(agree)})" if agree else ""
+    text += f" and disagree on {len(disagree)}"
+    text += f" (ours {', '.join(disagree)}; the paper's the reverse)" if disagree else ""
+    text += f"; tied: {', '.join(tied)}." if tied else "."
+    return text + left
 
 
 # ---------------------------------------------------------------------------------------- plots
@@ -552,39 +835,57 @@ def mean_curve(
     return grid, values.mean(axis=0), values.std(axis=0, ddof=0)
 
 
+def _style(run: Run, others: int) -> dict[str, str]:
+    """Line colour and style of a group: each of the paper's representations has its own colour
+    in every plot (C0..C6 in ``PAPER_ORDER``), its ablations dashed, other groups (the
+    ``others``-th of them) C7 on, dotted."""
+    tier, index = arm_order(run)
+    if tier > len(_REWARD_NOTES) + 1:
+        return {"color": f"C{(7 + others) % 10}", "linestyle": ":"}
+    return {"color": f"C{index}", "linestyle": "-" if tier == 0 else "--"}
+
+
 def plot_curves(
     runs: Sequence[Run],
     out_png: str | Path,
     x: Literal["env_steps", "wall_time_s"] = "env_steps",
+    thresholds: Sequence[float] = (),
 ) -> Path:
     """Success rate vs env steps (M) or vs wall time (min): per group, the mean over seeds with a
-    ± std band (see ``mean_curve``). Writes ``out_png`` atomically and returns it."""
+    ± std band (see ``mean_curve``; with two seeds the band is their min-max), and a grey dashed
+    line at each of ``thresholds``. Writes ``out_png`` atomically and returns it."""
     if x not in ("env_steps", "wall_time_s"):
         raise TrainerError(f"x must be env_steps or wall_time_s, got {x!r}")
     scale, xlabel = (1e6, "env steps (M)") if x == "env_steps" else (60.0, "wall time (min)")
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.5))
     labels = group_labels(runs)
+    for threshold in thresholds:
+        ax.axhline(threshold, color="0.5", linewidth=0.8, linestyle="--")
+    others = 0
     for key, members in group_runs(runs).items():
+        style = _style(members[0], others)
+        others += style["linestyle"] == ":"
         curve = mean_curve(members, x)
         if curve is None:
             continue
         grid, mean, std = curve
-        line = ax.plot(
+        ax.plot(
             grid / scale,
             mean,
             marker="o" if grid.size == 1 else None,
             label=f"{labels[key]} ({len(members)} seed{'' if len(members) == 1 else 's'})",
-        )[0]
+            **style,
+        )
         # A rate cannot leave [0, 1] even where mean ± std does.
         band = np.clip(mean - std, 0.0, 1.0), np.clip(mean + std, 0.0, 1.0)
-        ax.fill_between(grid / scale, *band, color=line.get_color(), alpha=0.2)
+        ax.fill_between(grid / scale, *band, color=style["color"], alpha=0.2)
     ax.set_xlabel(xlabel)
     ax.set_ylabel("success rate")
     ax.set_ylim(0.0, 1.02)
     ax.grid(alpha=0.3)
     if ax.get_legend_handles_labels()[0]:
-        ax.legend(loc="lower right")
+        ax.legend(loc="best", fontsize="small")
     return _save(fig, Path(out_png))
 
 
@@ -664,28 +965,129 @@ def _file_label(name: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "-" for c in name)
 
 
+def report_command(
+    run_dirs: Sequence[str | Path],
+    out_dir: str | Path,
+    compare: tuple[str, str] | None = None,
+    eval_dir: str = "eval",
+    thresholds: Sequence[float] = THRESHOLDS,
+    allow_differ: Sequence[str] = (),
+) -> str:
+    """The ``trainer report`` command line that writes this report, its paths relative to the
+    current directory (options at their defaults left out)."""
+    cwd = Path.cwd()
+    args = ["trainer", "report", *(_relative_to(Path(d), cwd) for d in run_dirs)]
+    args += ["--out", _relative_to(Path(out_dir), cwd)]
+    if eval_dir != "eval":
+        args += ["--eval", eval_dir]
+    if tuple(thresholds) != THRESHOLDS:
+        args += ["--thresholds", ",".join(f"{t:g}" for t in thresholds)]
+    if allow_differ:
+        args += ["--allow-differ", ",".join(allow_differ)]
+    if compare is not None:
+        args += ["--compare", ",".join(compare)]
+    return shlex.join(args)
+
+
+def _check_thresholds(thresholds: Sequence[float]) -> None:
+    if not thresholds or any(not 0.0 < t <= 1.0 for t in thresholds):
+        raise TrainerError(
+            f"thresholds {list(thresholds)}: give success rates in (0, 1], e.g. 0.5,0.7"
+        )
+    if len(set(thresholds)) < len(thresholds):
+        raise TrainerError(f"thresholds {list(thresholds)}: each at most once")
+
+
+def _without(runs: list[Run], allow_differ: Sequence[str]) -> list[Run]:
+    """The runs with the settings in ``allow_differ`` dropped, so that seeds that differ in
+    them are one group; a name no run's config has is refused (a typo would drop nothing)."""
+    unknown = [
+        name for name in allow_differ
+        if name not in NOT_THE_EXPERIMENT and not any(name in r.settings for r in runs)
+    ]
+    if unknown:
+        raise TrainerError(
+            f"--allow-differ {', '.join(unknown)}: no run's config.json has such a field; name "
+            "dotted config fields, e.g. run.max_minutes"
+        )
+    drop = set(allow_differ)
+    return [
+        replace(r, settings={k: v for k, v in r.settings.items() if k not in drop}) for r in runs
+    ]
+
+
+def _eval_folders(runs: Sequence[Run]) -> list[str]:
+    """The folders with a per_object.csv in any of the runs (``trainer eval --out`` names)."""
+    found = {p.parent.name for r in runs for p in r.path.glob("*/per_object.csv")}
+    return sorted(found)
+
+
+def _table_one_notes(runs: Sequence[Run], eval_dir: str, labels: dict[GroupKey, str]) -> list[str]:
+    evaluated = [r for r in runs if r.per_object is not None]
+    criteria: dict[str, int] = {}
+    for r in evaluated:
+        text = r.eval_criterion or "not stated (table.md without a Success line)."
+        criteria[text] = criteria.get(text, 0) + 1
+    notes = [
+        f"Ours: the success per target object of `trainer eval` (folder `{eval_dir}` of each "
+        "run), mean ± std over the seeds evaluated (ddof 0; one seed: its value); † where some "
+        "of them lack the object. In brackets the paper's Table I (— where it has no value: "
+        "other objects, the reward ablations and other tasks). The mean over objects is per "
+        "seed over its objects, then over seeds; the paper's beside it is its mean over the same "
+        "objects, or its all-78 value where a column has objects outside its Table I.",
+        "",
+    ]
+    if len(criteria) == 1:
+        notes += [f"Success in these evaluations: {next(iter(criteria))}", ""]
+    else:
+        notes += ["The evaluations differ in their success criterion:", ""]
+        notes += [f"- {count} runs: {text}" for text, count in criteria.items()]
+        notes.append("")
+    group_of = {id(r): key for key, members in group_runs(runs).items() for r in members}
+    missing = [f"{labels[group_of[id(r)]]} seed {r.seed}" for r in runs if r.per_object is None]
+    if missing:
+        notes += [
+            f"Not evaluated (no `{eval_dir}/per_object.csv`), left out: {', '.join(missing)}.", ""
+        ]
+    return notes
+
+
 def write_report(
-    run_dirs: Sequence[str | Path], out_dir: str | Path, compare: tuple[str, str] | None = None
+    run_dirs: Sequence[str | Path],
+    out_dir: str | Path,
+    compare: tuple[str, str] | None = None,
+    eval_dir: str = "eval",
+    thresholds: Sequence[float] = THRESHOLDS,
+    allow_differ: Sequence[str] = (),
 ) -> list[Path]:
-    """Load the runs and write into ``out_dir``: ``success_vs_steps.png``,
-    ``success_vs_time.png``, ``gain_<other>_over_<base>.png`` when ``compare = (base, other)``
-    is given (group labels or representation names), and ``report.md`` with the summary table,
-    the per-object table when any run has eval data, links to the images and the list of runs
-    (each a link relative to ``out_dir``: no absolute path is written). Every file is written
-    atomically; returns the written paths, report.md last."""
+    """Load the runs (their evaluation from the folder ``eval_dir``; seeds may differ in the
+    config fields ``allow_differ`` too) and write into ``out_dir``: ``success_vs_steps.png``
+    and ``success_vs_time.png`` (learning curves with seed bands and the thresholds),
+    ``curriculum.png`` for runs with a lift curriculum, ``gain_<other>_over_<base>.png`` when
+    ``compare = (base, other)`` is given (group labels or representation names), and
+    ``report.md``: the command that made it, Table I (``per_object_table``) when any run has
+    eval data, the ranking against the paper (``paper_ranking``), Table II (``summary_table``
+    at ``thresholds``, with env steps per second), the plots, and the list of runs. Every path
+    in it is relative (runs relative to ``out_dir``, the command's to the directory it ran in).
+    Every file is written atomically; returns the written paths, report.md last."""
     if not run_dirs:
         raise TrainerError("no run directories given; pass at least one run directory")
+    _check_eval_dir(eval_dir)
+    _check_thresholds(thresholds)
     # The same directory given twice (e.g. overlapping globs) would count as an extra seed.
     unique = list(dict.fromkeys(Path(d).resolve() for d in run_dirs))
-    runs = [load_run(d) for d in unique]
+    runs = _without([load_run(d, eval_dir) for d in unique], allow_differ)
     out_dir = Path(out_dir)
+    command = report_command(unique, out_dir, compare, eval_dir, thresholds, allow_differ)
     evaluated = [r for r in runs if r.per_object is not None]
+    groups = group_runs(runs)
+    labels = group_labels(runs)
 
     if compare is not None:
         success_gain(runs, *compare)  # a bad name fails here, before any file is written
     written = [
-        plot_curves(runs, out_dir / "success_vs_steps.png", x="env_steps"),
-        plot_curves(runs, out_dir / "success_vs_time.png", x="wall_time_s"),
+        plot_curves(runs, out_dir / "success_vs_steps.png", "env_steps", thresholds),
+        plot_curves(runs, out_dir / "success_vs_time.png", "wall_time_s", thresholds),
     ]
     curriculum = [r for r in runs if r.has_curriculum]
     if curriculum:
@@ -696,20 +1098,59 @@ def write_report(
         written.append(plot_gain(runs, base, other, out_dir / name))
 
     parts = ["# Training report", ""]
-    parts += [f"{len(runs)} runs in {len(group_runs(runs))} groups.", ""]
-    parts += ["## Summary", "", summary_table(runs)]
     parts += [
-        f"Final success: the `trainer eval` overall (successes / episodes) for the "
-        f"{len(evaluated)} evaluated runs, the mean training success rate over the last 10 % of "
-        f"iterations for the other {len(runs) - len(evaluated)}. Steps and minutes to a threshold "
-        f"are at the first iteration whose training success rate reaches it; mean ± std over "
-        f"seeds (ddof 0) of the seeds that reached it.",
+        f"Made by this command, run in `{_relative_to(Path.cwd(), out_dir)}` (relative to this "
+        "folder):",
+        "",
+        f"    {command}",
+        "",
+        f"{len(runs)} run{'s' * (len(runs) != 1)} in {len(groups)} "
+        f"arm{'s' * (len(groups) != 1)}: "
+        + ", ".join(f"{labels[k]} ({len(m)})" for k, m in groups.items()) + ".",
         "",
     ]
+    if any(" [" in key[1] for key in groups):
+        parts += [
+            "Runs whose configs differ in more than the seed are separate arms, named by the "
+            "difference (`[name=value]`); `--allow-differ FIELD,...` makes them one arm where "
+            "the difference is not the experiment (e.g. `run.max_minutes`).",
+            "",
+        ]
+    parts += [f"## Table I: success per object (`trainer eval`, folder `{eval_dir}`)", ""]
     if evaluated:
-        parts += ["## Success per object (`trainer eval`)", "", per_object_table(runs)]
+        parts += [per_object_table(runs), *_table_one_notes(runs, eval_dir, labels)]
+        parts += ["## Ranking against the paper", "", ranking_text(paper_ranking(runs)), ""]
+    else:
+        found = ", ".join(f"`{name}`" for name in _eval_folders(runs)) or "none"
+        parts += [
+            f"No run has `{eval_dir}/per_object.csv` (evaluation folders in the runs: {found}): "
+            "run `trainer eval` on them, or name another folder with `--eval`.",
+            "",
+        ]
+    parts += ["## Table II: sample efficiency (training curve)", ""]
+    parts.append(summary_table(runs, thresholds))
+    final = {
+        len(runs): "the `trainer eval` overall (successes / episodes)",
+        0: "the mean training success rate over the last 10 % of iterations",
+    }.get(len(evaluated), (
+        f"the `trainer eval` overall (successes / episodes) for the {len(evaluated)} evaluated "
+        f"runs, the mean training success rate over the last 10 % of iterations for the other "
+        f"{len(runs) - len(evaluated)}"
+    ))
     parts += [
-        "## Curves",
+        f"Final success: {final}. env steps/s: a run's env steps "
+        "over its training wall time (all parallel environments, PPO updates included), mean ± "
+        "std over seeds. Reached: the seeds whose training success rate (metrics.csv, the mean "
+        "over objects) reached the threshold; steps and minutes are at the first iteration that "
+        "did, mean ± std over those seeds (ddof 0), in brackets the paper's Table II (its arms, "
+        "at 90 % and 95 % only).",
+        "",
+    ]
+    parts += [
+        "## Learning curves",
+        "",
+        "Training success rate, per arm the mean over seeds with a ± std band (over the env "
+        "steps / minutes every seed covers); dashed grey: the thresholds.",
         "",
         "![success vs env steps](success_vs_steps.png)",
         "",
@@ -734,10 +1175,14 @@ def write_report(
             "",
         ]
     parts += ["## Runs", "", "Paths relative to this report's directory.", ""]
-    group_of = {id(r): key for key, members in group_runs(runs).items() for r in members}
+    group_of = {id(r): key for key, members in groups.items() for r in members}
     for r in runs:
         rel = _relative_to(r.path, out_dir)
-        parts.append(f"- [`{rel}`]({rel}): {'/'.join(group_of[id(r)])}, seed {r.seed}")
+        key = group_of[id(r)]
+        evaluation = "" if r.per_object is not None else f", no `{eval_dir}`"
+        parts.append(
+            f"- [`{rel}`]({rel}): {labels[key]} ({'/'.join(key)}), seed {r.seed}{evaluation}"
+        )
 
     report = out_dir / "report.md"
     with atomic_path(report) as tmp:
