@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -204,3 +206,40 @@ def test_searched_grasp_records_beside_other_families(
     n = alone.qpos.shape[1]
     torch.testing.assert_close(starts.qpos[~box, :n], alone.qpos[~box])
     assert bool(starts.lifted.any())
+
+
+def test_recording_the_starts_says_so_and_counts_against_the_time_budget(
+    builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
+) -> None:
+    """A run with grasp starts says it is recording them (minutes for ten objects, before the
+    first iteration) and its clock starts with that time: ``--minutes`` counts it."""
+    import csv
+    import time
+
+    import trainer.ppo
+    from trainer.config import load_train_config
+    from trainer.ppo import train
+
+    recording: list[float] = []
+
+    def slow_record(*args: object, **kwargs: object):  # noqa: ANN202
+        began = time.perf_counter()
+        time.sleep(1.0)  # a recording long enough to tell from an iteration's time
+        starts = record_grasp_starts(*args, **kwargs)
+        recording.append(time.perf_counter() - began)
+        return starts
+
+    monkeypatch.setattr(trainer.ppo, "record_grasp_starts", slow_record)
+    cfg = load_train_config(
+        env={"num_envs": 4, "objects": "builtin_cylinder", "representation": "bbox",
+             "data_dir": builtin_data.data_dir, "max_steps": 12,
+             "robot": {"home_above_objects": True}},
+        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
+             "hidden": (16, 16)},
+        run={"total_steps": 32, "seed": 0, "grasp_starts": 0.5, "grasp_start_family": "top",
+             "grasp_start_rounds": 1},
+    )
+    run = train(cfg, tmp_path / "run", progress=False)
+    assert "recording the grasp starts" in capsys.readouterr().out
+    (row,) = csv.DictReader(run.metrics.read_text().splitlines())
+    assert len(recording) == 1 and float(row["wall_time_s"]) >= recording[0]
