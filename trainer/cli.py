@@ -231,10 +231,9 @@ def grasp(
     _device(device)
     if hold_tips is not None:
         _at_least("--hold-tips", hold_tips, 0)
-    import time
-
-    from trainer.grasps import family, family_variants, measure
+    from trainer.grasps import family, family_variants
     from trainer.grasps.outcomes import write_rows
+    from trainer.grasps.trials import run_trials
 
     fam = family(family_name)
     names = None if variants == "all" else [v for v in variants.split(",") if v]
@@ -245,17 +244,14 @@ def grasp(
                              "reward": None if hold_tips is None else {"hold_tips": hold_tips},
                              }.items() if v is not None}
     rows: list[dict] = []
-    for name, variant in chosen.items():
-        start = time.perf_counter()
-        batch = measure(family_name, name, variant, objects.split(","), trials, seed,
-                        config_path, **env)
-        rows += batch
-        lifted, total = sum(r["lifted"] for r in batch), sum(r["trials"] for r in batch)
-        click.echo(f"\n### {family_name} {name} ({lifted}/{total} lifted, "
-                   f"{time.perf_counter() - start:.0f} s)\n")
+    for batch in run_trials([(family_name, n, v) for n, v in chosen.items()],
+                            objects.split(","), trials, [seed], config_path=config_path, **env):
+        rows += batch.rows
+        click.echo(f"\n### {family_name} {batch.variant} ({batch.lifted}/{batch.trials} lifted, "
+                   f"{batch.seconds:.0f} s)\n")
         click.echo("| object | lifted | dropped | no grip | pushed | max rise cm | held lifts |")
         click.echo("|---|---:|---:|---:|---:|---:|---:|")
-        for r in batch:
+        for r in batch.rows:
             click.echo(f"| {r['object']} | {r['lifted']} | {r['dropped']} | {r['no_grip']} | "
                        f"{r['pushed']} | {r['max_rise_cm']} | {r['held_lifts']} |")
         if out is not None:
