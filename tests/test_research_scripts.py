@@ -45,19 +45,35 @@ def test_tilt_between_orientations() -> None:
 
 
 
-def tiny_trained_run(builtin_data: Config, tmp_path: Path) -> RunDir:
+def test_early_lifts_runs_the_initial_policy(
+    builtin_data: Config, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """scripts/early_lifts.py: the untrained policy's held successes (none in a few steps on the
+    dice), counted over every env and step."""
+    early_lifts = script("scripts", "early_lifts")
+
+    events = early_lifts.early_lifts("builtin_dice", str(builtin_data.data_dir), envs=4,
+                                     steps=8, h_bar=0.03)
+    assert all(0 <= step < 8 and tilt >= 0 for step, tilt, _ in events)
+    early_lifts.main(["builtin_dice", str(builtin_data.data_dir), "--envs", "4", "--steps", "8"])
+    assert capsys.readouterr().out.startswith(
+        f"held successes at 0.03 m (lift_clearance 0 m) in 8 steps x 4 envs: {len(events)}")
+
+
+@pytest.fixture(scope="module")
+def box_run(builtin_data: Config, tmp_path_factory: pytest.TempPathFactory) -> RunDir:
     """One PPO iteration on the built-in box (4 envs, 12-action episodes): a run directory
     with a checkpoint, for the scripts that read one."""
-    return tiny_run(builtin_data, tmp_path / "run", "builtin_box")
+    return tiny_run(builtin_data, tmp_path_factory.mktemp("box") / "run", "builtin_box")
 
 
-def test_policy_probe_follows_an_episode(builtin_data: Config, tmp_path: Path) -> None:
+def test_policy_probe_follows_an_episode(box_run: RunDir) -> None:
     """scripts/policy_probe.py on a tiny trained run: one row per action of a whole episode,
     the target starting on the table (no rise at the first action), the hand's 5 servo targets
     in each row, and the printed table's rows every ``--every`` actions plus the last."""
     policy_probe = script("scripts", "policy_probe")
 
-    run = tiny_trained_run(builtin_data, tmp_path)
+    run = box_run
     rows, success, earned = policy_probe.probe(run.path, envs=3, h_bar=0.05, gammas=(0.9, 1.0))
     assert len(rows) == 12 and 0.0 <= success <= 1.0
     # the discounted return weighs later rewards less; with gamma 1 it is the plain sum, the
@@ -203,9 +219,7 @@ def test_start_noise_replays_the_same_starts_per_setting(
         start_noise.survive(run.path, [quiet])
 
 
-def test_episode_outcomes_puts_each_episode_in_one_class(
-    builtin_data: Config, tmp_path: Path
-) -> None:
+def test_episode_outcomes_puts_each_episode_in_one_class(box_run: RunDir) -> None:
     """scripts/episode_outcomes.py: the classes from the centre rise (a success whatever its
     rise; never up 1 cm; up then 3 cm below the peak at the end; up and staying), and on a tiny
     trained run one line per env whose counts add up to the envs."""
@@ -219,7 +233,7 @@ def test_episode_outcomes_puts_each_episode_in_one_class(
     assert eo.classify(up_and_down, False, 0.01, 0.03) == "dropped"
     assert eo.classify(torch.tensor([0.0, 0.05, 0.04]), False, 0.01, 0.03) == "stalled"
 
-    run = tiny_trained_run(builtin_data, tmp_path)
+    run = box_run
     episodes = eo.outcomes(run.path, envs=3, h_bar=0.05)
     assert len(episodes) == 3
     for ep in episodes:
@@ -256,29 +270,32 @@ def test_metrics_blocks_weights_rates_by_episodes(tmp_path: Path) -> None:
         metrics_blocks.main([str(tmp_path / "missing")])
 
 
-def test_eval_upright_splits_exactly_the_episodes_of_trainer_eval(
-    builtin_data: Config, tmp_path: Path
-) -> None:
+@pytest.fixture(scope="module")
+def dice_mug(builtin_data: Config, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A tiny untrained run on the built-in dice and mug (both land either way up)."""
+    return tiny_dice_mug_run(builtin_data, tmp_path_factory.mktemp("dice-mug") / "run").path
+
+
+def test_eval_upright_splits_exactly_the_episodes_of_trainer_eval(dice_mug: Path) -> None:
     """scripts/eval_upright.py replays trainer eval's episodes: per object its upright and
     upside-down episodes add up to the eval's episodes, their held ones to its successes."""
-
     from trainer.evaluation import evaluate
 
     eval_upright = script("scripts", "eval_upright")
 
-    run = tiny_dice_mug_run(builtin_data, tmp_path / "run")
-    result = evaluate(run.path, episodes_per_object=12)
-    rows = eval_upright.split_by_start_up(run.path, episodes_per_object=12)
+    result = evaluate(dice_mug, episodes_per_object=12)
+    rows = eval_upright.split_by_start_up(dice_mug, episodes_per_object=12)
     assert [row[0] for row in rows] == result.names
     assert [row[1] + row[3] for row in rows] == result.episodes == [12, 12]
     assert [row[2] + row[4] for row in rows] == result.successes
     # Both ways up occur (a dice or mug reset lands on any side), so the split is exercised.
     assert all(row[1] > 0 and row[3] > 0 for row in rows)
+    lines = eval_upright.main([str(dice_mug), "--episodes-per-object", "12"])
+    assert lines[2] == f"| builtin_dice | {rows[0][2]}/{rows[0][1]} | {rows[0][4]}/{rows[0][3]} | "\
+        f"{result.successes[0]}/12 |" and len(lines) == 4
 
 
-def test_grasp_offset_measures_the_pads_in_the_object_box_frame(
-    builtin_data: Config, tmp_path: Path
-) -> None:
+def test_grasp_offset_measures_the_pads_in_the_object_box_frame(dice_mug: Path) -> None:
     """scripts/grasp_offset.py: the pads' centroid in the box frame (a turned, shifted box), and
     per object the episodes trainer eval runs (an untrained policy holds none: no offset)."""
     import math
@@ -302,10 +319,12 @@ def test_grasp_offset_measures_the_pads_in_the_object_box_frame(
     assert distance.item() == pytest.approx(0.08, abs=1e-6)
     assert fraction.item() == pytest.approx(0.08 / 0.1, abs=1e-5)  # along the box's long axis
 
-    run = tiny_dice_mug_run(builtin_data, tmp_path / "run")
-    result = evaluate(run.path, episodes_per_object=6)
-    rows = grasp_offset.grasp_offsets(run.path, episodes_per_object=6)
+    result = evaluate(dice_mug, episodes_per_object=6)
+    rows = grasp_offset.grasp_offsets(dice_mug, episodes_per_object=6)
     assert [row[0] for row in rows] == result.names
     assert [row[1] for row in rows] == result.episodes
     assert [row[2] for row in rows] == result.successes
     assert all(math.isnan(row[3]) for row in rows if row[2] == 0)
+    lines = grasp_offset.main([str(dice_mug), "--episodes-per-object", "6", "--objects",
+                               "builtin_mug"])
+    assert lines[2] == "| builtin_mug | 0/6 | nan | nan |" and len(lines) == 3  # none held
