@@ -19,13 +19,13 @@ import torch
 from tensordict import TensorDictBase
 
 from geomgrasp.rotations import quat_to_matrix
-from trainer.session import EvalSession, eval_parser
+from trainer.session import EVAL_SEED, EvalSession, eval_parser
 from trainer.tasks import GraspTask
 
 
 def split_by_start_up(
     run_dir: Path, episodes_per_object: int = 50, iteration: int | None = None,
-    objects: str | None = None, seed: int = 12345,
+    objects: str | None = None, seed: int = EVAL_SEED,
 ) -> list[tuple[str, int, int, int, int]]:
     """Per object: (name, upright episodes, upright held, upside-down episodes, upside-down
     held) over the episodes ``trainer eval`` runs with these arguments."""

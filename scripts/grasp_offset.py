@@ -20,7 +20,7 @@ import torch
 from tensordict import TensorDictBase
 
 from geomgrasp.rotations import quat_to_matrix
-from trainer.session import EvalSession, eval_parser
+from trainer.session import EVAL_SEED, EvalSession, eval_parser
 from trainer.tasks import GraspTask
 
 
@@ -41,7 +41,7 @@ def box_frame_offset(
 
 def grasp_offsets(
     run_dir: Path, episodes_per_object: int = 50, iteration: int | None = None,
-    objects: str | None = None, seed: int = 12345,
+    objects: str | None = None, seed: int = EVAL_SEED,
 ) -> list[tuple[str, int, int, float, float]]:
     """Per object: (name, episodes, held, median distance (m), median fraction of the half
     extent); the medians are nan without a held episode."""

@@ -24,7 +24,7 @@ from trainer.errors import TrainerError
 from trainer.grasps.outcomes import HELD_DISTANCE, HELD_PADS
 from trainer.grasps.runner import keypoint_distances
 from trainer.report import task_label
-from trainer.session import MAX_ENVS, Episodes, EvalSession
+from trainer.session import EVAL_SEED, MAX_ENVS, Episodes, EvalSession
 from trainer.tasks import GraspTask
 from trainer.training.run_dir import RunDir
 
@@ -92,7 +92,7 @@ def evaluate(
     run_dir: Path,
     episodes_per_object: int = 10,
     objects: str | None = None,
-    seed: int = 12345,
+    seed: int = EVAL_SEED,
     max_envs: int = MAX_ENVS,
     device: str | None = None,
     max_rounds: int = MAX_ROUNDS,

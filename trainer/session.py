@@ -34,7 +34,7 @@ import dataclasses
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import torch
 from tensordict import TensorDictBase
@@ -42,17 +42,17 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from trainer.config import EnvConfig, RewardConfig, TrainConfig
 from trainer.errors import TrainerError
+from trainer.models import Agent
 from trainer.objects import resolve_names
 from trainer.randomness import RandomStreams, run_streams
 from trainer.tasks import GraspTask, make_env
 from trainer.training.checkpoint import load_agent
 from trainer.training.run_dir import RunDir
 
-if TYPE_CHECKING:
-    from trainer.models import Agent
-
 MAX_ENVS = 1024
 """Envs of one batch of lift evaluation episodes at most (``trainer eval``; ``lift_batches``)."""
+EVAL_SEED = 12345
+"""The seed of ``trainer eval``'s episodes (its ``--seed`` default)."""
 
 ResetHook = Callable[[GraspTask, TensorDictBase], None]
 """``on_reset(env, td)``: see the module's docstring."""
@@ -250,7 +250,7 @@ class EvalSession:
                 for start in range(0, len(names), per_batch)]
 
     def lift_episodes(
-        self, names: Sequence[str], episodes_per_object: int, seed: int = 12345, *,
+        self, names: Sequence[str], episodes_per_object: int, seed: int = EVAL_SEED, *,
         deterministic: bool = True, max_envs: int = MAX_ENVS,
         actor: Callable[[TensorDictBase], TensorDictBase] | None = None,
         on_reset: ResetHook | None = None, on_step: StepHook | None = None,
@@ -357,5 +357,5 @@ def eval_parser(description: str) -> argparse.ArgumentParser:
     parser.add_argument("--episodes-per-object", type=int, default=50)
     parser.add_argument("--iteration", type=int, default=None)
     parser.add_argument("--objects", default=None)
-    parser.add_argument("--seed", type=int, default=12345, help="trainer eval's default")
+    parser.add_argument("--seed", type=int, default=EVAL_SEED, help="trainer eval's default")
     return parser
