@@ -422,7 +422,7 @@ def build_cost(args: argparse.Namespace) -> None:
     env.close()
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--backend", default="cpu", choices=("cpu", "warp"))
     parser.add_argument("--device", default="cpu", help="torch device: cpu, or cuda for a GPU")
@@ -462,7 +462,7 @@ def main() -> None:
     parser.add_argument("--memory-envs", type=int, default=256)
     parser.add_argument("--memory-objects", default="ycb")
     parser.add_argument("--memory-bin-objects", type=int, default=10)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     try:
         variants(args)  # every --set and --variant checked before anything is built
     except TrainerError as exc:

@@ -3,10 +3,11 @@ scripted grasp families (``trainer.grasps``), under one or more configurations, 
 with a baseline measured in the same run.
 
 For each configuration and each family (``top``, ``pinch``, or ``family:variant``; the ``base``
-variant by default), ``trainer.grasps.measure`` runs ``--trials`` randomized trials per object
-in one batch (the lift task, seed ``--seed``: every configuration and family sees the same
-initial states for the same objects) and classifies each: *lifted* (raised by 0.2 m and held,
-the task's success), *dropped*, *no_grip*, *pushed* (``trainer.grasps.outcomes``).
+variant by default), the package's grasp-trial runner (``trainer.grasps.trials.run_trials``,
+also behind ``trainer grasp``) runs ``--trials`` randomized trials per object in one batch
+(the lift task, seed ``--seed``: every configuration and family sees the same initial states
+for the same objects) and classifies each: *lifted* (raised by 0.2 m and held, the task's
+success), *dropped*, *no_grip*, *pushed* (``trainer.grasps.outcomes``).
 
 Configurations: the baseline is today's defaults (``--config`` if given); ``--set KEY=VALUE``
 (``section.field``, a TOML value, repeatable) makes one configuration under test, ``--grid
@@ -42,7 +43,6 @@ import itertools
 import math
 import statistics
 import sys
-import time
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -235,8 +235,9 @@ def main(argv: list[str] | None = None) -> None:
 def run(args: argparse.Namespace) -> None:
     """Measure every configuration x family and print the tables and the summary."""
     from trainer.config import load_env_config
-    from trainer.grasps import TABLE1_OBJECTS, family_variants, measure
+    from trainer.grasps import TABLE1_OBJECTS, family_variants
     from trainer.grasps.outcomes import write_rows
+    from trainer.grasps.trials import run_trials
     from trainer.objects import resolve_names
 
     if args.trials < 1:
@@ -265,36 +266,32 @@ def run(args: argparse.Namespace) -> None:
 
     rows: list[dict] = []
     totals: dict[str, tuple[int, int]] = {}
-    for config in configs:
-        name = label(config)
-        for (fam, variant_name), seed in itertools.product(families, seeds):
-            variant = family_variants(fam, [variant_name])[variant_name]
-            start = time.perf_counter()
-            batch = measure(fam, variant_name, variant, objects, args.trials, seed,
-                            args.config, hold=args.hold, **{**env, **overrides(config)})
-            seconds = time.perf_counter() - start
-            for row in batch:
-                row.update(config=name, seed=seed, **{k: config.get(k, "") for k in keys})
-            rows += batch
-            lifted, trials = (sum(r[k] for r in batch) for k in ("lifted", "trials"))
-            done = totals.get(name, (0, 0))
-            totals[name] = (done[0] + lifted, done[1] + trials)
-            print(f"\n### {name}: {fam} {variant_name}, seed {seed} ({lifted}/{trials} lifted, "
-                  f"{seconds:.0f} s)\n")
-            extra = HOLD_COLUMNS if args.hold else ()
-            print("| object | lifted | dropped | no grip | pushed | upside down (lifted) |"
-                  + "".join(f" {c} |" for c in extra))
-            print("|---|---:|---:|---:|---:|---:|" + "---:|" * len(extra))
-            for r in batch:
-                print(f"| {r['object']} | {r['lifted']} | {r['dropped']} | {r['no_grip']} | "
-                      f"{r['pushed']} | {r['upside_down']} ({r['upside_down_lifted']}) |"
-                      + "".join(f" {r[c]} |" for c in extra))
-            sys.stdout.flush()
-            if args.out is not None:
-                write_csv(args.out, rows, keys, args.hold)
-            trials_so_far = trial_rows(rows)
-            if args.hold_out is not None and trials_so_far:
-                write_rows(args.hold_out, trials_so_far)
+    variants = [(fam, v, family_variants(fam, [v])[v]) for fam, v in families]
+    for batch in run_trials(variants, objects, args.trials, seeds, configs, args.config,
+                            hold=args.hold, **env):
+        name, seed, config = label(batch.config), batch.seed, batch.config
+        for row in batch.rows:
+            row.update(config=name, seed=seed, **{k: config.get(k, "") for k in keys})
+        rows += batch.rows
+        lifted, trials = batch.lifted, batch.trials
+        done = totals.get(name, (0, 0))
+        totals[name] = (done[0] + lifted, done[1] + trials)
+        print(f"\n### {name}: {batch.family} {batch.variant}, seed {seed} ({lifted}/{trials} "
+              f"lifted, {batch.seconds:.0f} s)\n")
+        extra = HOLD_COLUMNS if args.hold else ()
+        print("| object | lifted | dropped | no grip | pushed | upside down (lifted) |"
+              + "".join(f" {c} |" for c in extra))
+        print("|---|---:|---:|---:|---:|---:|" + "---:|" * len(extra))
+        for r in batch.rows:
+            print(f"| {r['object']} | {r['lifted']} | {r['dropped']} | {r['no_grip']} | "
+                  f"{r['pushed']} | {r['upside_down']} ({r['upside_down_lifted']}) |"
+                  + "".join(f" {r[c]} |" for c in extra))
+        sys.stdout.flush()
+        if args.out is not None:
+            write_csv(args.out, rows, keys, args.hold)
+        trials_so_far = trial_rows(rows)
+        if args.hold_out is not None and trials_so_far:
+            write_rows(args.hold_out, trials_so_far)
 
     if args.hold:
         print(f"\n## held trials pooled over seeds {','.join(map(str, seeds))} (pull ratio: "

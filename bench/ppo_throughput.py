@@ -75,7 +75,7 @@ def env_only(cfg, iterations: int, physics: bool) -> dict[str, float]:  # noqa: 
     return out
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--backend", default="cpu", choices=("cpu", "warp"))
     parser.add_argument("--device", default="cpu", help="torch device: cpu, or cuda for a GPU")
@@ -95,7 +95,7 @@ def main() -> None:
         "--compile", action=argparse.BooleanOptionalAction, default=True,
         help="torch.compile the env's task computations (trainer run --compile)",
     )
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     torch.set_num_threads(1)
     warp = args.backend == "warp"
     if warp:

@@ -12,7 +12,6 @@ shuffle); then the mean seconds and the ratio of the summed times.
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -22,9 +21,7 @@ import numpy as np
 import open3d as o3d
 import trimesh
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from geomprep.sdf import compute_sdf, voxel_centers  # noqa: E402
+from geomprep.sdf import compute_sdf, voxel_centers
 
 DEFAULT_OBJECTS = "025_mug,032_knife,062_dice,029_plate,019_pitcher_base"
 DEFAULT_YCB = Path(__file__).resolve().parents[2] / "shared" / "ycb"
@@ -65,12 +62,12 @@ def compressed_mb(grid: np.ndarray) -> float:
         return path.stat().st_size / 1e6
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--objects", default=DEFAULT_OBJECTS, help="comma-separated YCB names")
     parser.add_argument("--ycb-dir", type=Path, default=DEFAULT_YCB)
     parser.add_argument("--resolution", type=int, default=200)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     print(f"{'object':<22}{'open3d s':>10}{'ours s':>9}{'ratio':>7}{'max err mm':>12}{'MB':>7}")
     base_total = ours_total = 0.0
     names = args.objects.split(",")

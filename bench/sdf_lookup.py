@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -33,11 +32,9 @@ import numpy as np
 import torch
 from scipy.interpolate import RegularGridInterpolator
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from geomgrasp.rotations import quat_to_matrix, random_quats  # noqa: E402
-from geomprep.sdf import voxel_centers  # noqa: E402
-from geomprep.sdf_lookup import SDFLookup, empty_grids  # noqa: E402
+from geomgrasp.rotations import quat_to_matrix, random_quats
+from geomprep.sdf import voxel_centers
+from geomprep.sdf_lookup import SDFLookup, empty_grids
 
 PAPER_MS = 0.31
 TARGET_CPU_MS = 3.0
@@ -162,7 +159,7 @@ def median_ms(fn: Callable[[], object], repeats: int, sync: Callable[[], None]) 
     return statistics.median(times_ms(fn, repeats, sync))
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", type=int, default=16384)
     parser.add_argument("--points", type=int, default=5)
@@ -190,7 +187,7 @@ def main() -> None:
         help="fingertips within 2 cm of the surface (realistic), 15 cm of the origin, or "
         "anywhere in the grid cube (worst case); see make_queries",
     )
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     if args.threads:
         # On a loaded 2-core machine 2 intra-op threads wait on each other at every op.
         torch.set_num_threads(args.threads)

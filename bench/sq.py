@@ -24,17 +24,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from geomprep import mesh as gmesh  # noqa: E402
-from geomprep import pointcloud  # noqa: E402
-from geomprep import superquadric as sq  # noqa: E402
-from geomprep.config import Config  # noqa: E402
+from geomprep import mesh as gmesh
+from geomprep import pointcloud
+from geomprep import superquadric as sq
+from geomprep.config import Config
 
 DEFAULT_YCB = Path("/work/shared/ycb")
 CONCAVE = ("024_bowl", "025_mug", "029_plate", "065-a_cups")
@@ -204,12 +201,12 @@ def _summary(results: dict[str, dict[str, tuple[np.ndarray, float, dict[str, flo
             print(f"box     {name:20s} mesh->sq mean {ems:5.2f} -> {reg:5.2f} mm  {verdict}")
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--objects", default="", help="N (first N by name) or a,b,c")
     parser.add_argument("--ycb-dir", type=Path, default=DEFAULT_YCB)
     parser.add_argument("--figures", type=Path, default=None, help="write sq_<name>.png here")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     logging.getLogger("trimesh").setLevel(logging.ERROR)
 
     available = sorted(

@@ -68,7 +68,7 @@ def early_lifts(obj: str, data_dir: str, envs: int, steps: int, h_bar: float,
     return events
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("object")
     parser.add_argument("data_dir")
@@ -76,7 +76,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=150)
     parser.add_argument("--h-bar", type=float, default=0.03)
     parser.add_argument("--lift-clearance", type=float, default=0.0)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     events = early_lifts(args.object, args.data_dir, args.envs, args.steps, args.h_bar,
                          lift_clearance=args.lift_clearance)
     print(f"held successes at {args.h_bar} m (lift_clearance {args.lift_clearance:g} m) in "

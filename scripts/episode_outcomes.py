@@ -24,6 +24,12 @@ from collections import Counter
 from pathlib import Path
 
 import torch
+from tensordict import TensorDictBase
+
+from trainer.grasps import keypoint_distances
+from trainer.grasps.outcomes import HELD_DISTANCE
+from trainer.session import EvalSession
+from trainer.tasks import GraspTask
 
 CLASSES = ("success", "never lifted", "dropped", "stalled")
 
@@ -57,19 +63,16 @@ def classify(rise: torch.Tensor, success: bool, lifted: float, drop: float) -> s
 
 def outcomes(run_dir: Path, envs: int = 50, seed: int = 11, h_bar: float | None = None,
              lifted: float = 0.01, drop: float = 0.03, after: int = 6) -> list[Episode]:
-    """One deterministic episode in each of ``envs`` envs of the run's last checkpoint."""
-    from policy_probe import load_run_env
-
-    from trainer.evaluation import run_episodes
-    from trainer.grasps import keypoint_distances
-    from trainer.grasps.outcomes import HELD_DISTANCE
-
-    _, agent, env = load_run_env(run_dir, envs, seed, h_bar)
-    rise: list[torch.Tensor] = []
+    """One deterministic episode in each of ``envs`` envs of the run's last checkpoint (the
+    run's env config, uncompiled, seeded ``seed``; ``h_bar``: the lift target (m) instead of
+    the run's)."""
+    session = EvalSession.load(run_dir, h_bar=h_bar)
+    env = session.env(envs, seed, compile=False, quiet=True)
+    rise: list[torch.Tensor] = []  # per action, (E,) each
     pads: list[torch.Tensor] = []
     hand: list[torch.Tensor] = []
 
-    def on_step() -> None:
+    def on_step(env: GraspTask, step: int, td: TensorDictBase) -> None:
         pos, _ = env.target_pose()
         rise.append((pos[:, 2] - env.state["start_height"]).cpu())
         if env.objects.sdf is not None:
@@ -78,7 +81,7 @@ def outcomes(run_dir: Path, envs: int = 50, seed: int = 11, h_bar: float | None 
             pads.append(torch.zeros(env.num_envs, dtype=torch.long))
         hand.append(env.state["ctrl"][:, env.robot.hand.actuators].cpu())
 
-    success, length, _ = run_episodes(env, agent.actor, deterministic=True, on_step=on_step)
+    success, length, _ = session.run(env, on_step=on_step)
     env.close()
     rises, near, targets = torch.stack(rise), torch.stack(pads), torch.stack(hand)  # (T, E, ...)
     episodes = []

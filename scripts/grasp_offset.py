@@ -14,12 +14,14 @@ its largest coordinate as a fraction of the box's half extent along that axis (0
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import torch
+from tensordict import TensorDictBase
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # eval_upright beside it
+from geomgrasp.rotations import quat_to_matrix
+from trainer.session import EVAL_SEED, EvalSession, eval_parser
+from trainer.tasks import GraspTask
 
 
 def box_frame_offset(
@@ -30,8 +32,6 @@ def box_frame_offset(
     m; largest |coordinate| / half extent along its axis (E,)). tips (E, 5, 3) world; obj_pos
     (E, 3), obj_quat (E, 4) wxyz; bbox_center (E, 3), bbox_rotation (E, 3, 3) (axes as columns)
     and bbox_extents (E, 3) in the object's frame."""
-    from geomgrasp.rotations import quat_to_matrix
-
     rot = quat_to_matrix(obj_quat)  # (E, 3, 3)
     centre = obj_pos + (rot @ bbox_center[..., None])[..., 0]
     axes = rot @ bbox_rotation  # the box's axes in the world, as columns
@@ -41,29 +41,33 @@ def box_frame_offset(
 
 def grasp_offsets(
     run_dir: Path, episodes_per_object: int = 50, iteration: int | None = None,
-    objects: str | None = None, seed: int = 12345,
+    objects: str | None = None, seed: int = EVAL_SEED,
 ) -> list[tuple[str, int, int, float, float]]:
     """Per object: (name, episodes, held, median distance (m), median fraction of the half
     extent); the medians are nan without a held episode."""
-    from eval_upright import eval_env
+    session = EvalSession.load(run_dir, "cpu", iteration)
+    names = session.names(objects)
+    distances: list[torch.Tensor] = []  # per batch of envs, (E,) at each env's success
+    fractions: list[torch.Tensor] = []
 
-    from trainer.evaluation import run_episodes
+    def on_reset(env: GraspTask, td: TensorDictBase) -> None:
+        distances.append(torch.full((env.num_envs,), float("nan")))
+        fractions.append(torch.full((env.num_envs,), float("nan")))
 
-    names, env, agent = eval_env(run_dir, episodes_per_object, iteration, objects, seed)
-    distance = torch.full((env.num_envs,), float("nan"))
-    fraction = torch.full((env.num_envs,), float("nan"))
-
-    def at_success(mask: torch.Tensor) -> None:  # the env in the state of the successful step
+    def on_episode(env: GraspTask, ended: torch.Tensor, mask: torch.Tensor) -> None:
+        if not bool(mask.any()):  # the env in the state of the step some episodes succeeded
+            return
         ids = env.target_objects().cpu()
         tips = env.kinematics.forward(env.backend.qpos).site_pos[:, 1:].cpu()
         obj_pos, obj_quat = (x.cpu() for x in env.target_pose())
         o = env.objects
         d, f = box_frame_offset(tips, obj_pos, obj_quat, o.bbox_center.cpu()[ids],
                                 o.bbox_rotation.cpu()[ids], o.bbox_extents.cpu()[ids])
-        distance[mask], fraction[mask] = d[mask], f[mask]
+        distances[-1][mask], fractions[-1][mask] = d[mask], f[mask]
 
-    success, _, ids = run_episodes(env, agent.actor, True, at_success=at_success)
-    env.close()
+    success, _, ids = session.lift_episodes(names, episodes_per_object, seed,
+                                            on_reset=on_reset, on_episode=on_episode)
+    distance, fraction = torch.cat(distances), torch.cat(fractions)
     rows = []
     for k, name in enumerate(names):
         held = (ids == k) & success
@@ -73,17 +77,16 @@ def grasp_offsets(
     return rows
 
 
-def main() -> None:
-    from eval_upright import eval_arguments
-
-    args = eval_arguments(__doc__.splitlines()[0])
+def main(argv: list[str] | None = None) -> list[str]:
+    args = eval_parser(__doc__.splitlines()[0]).parse_args(argv)
     rows = grasp_offsets(args.run_dir, args.episodes_per_object, args.iteration, args.objects,
                          args.seed)
-    print("| object | held / episodes | pads from the box centre (cm, median) "
-          "| largest coordinate / half extent (median) |")
-    print("|---|---:|---:|---:|")
+    lines = ["| object | held / episodes | pads from the box centre (cm, median) "
+             "| largest coordinate / half extent (median) |", "|---|---:|---:|---:|"]
     for name, episodes, held, dist, frac in rows:
-        print(f"| {name} | {held}/{episodes} | {100 * dist:.1f} | {frac:.2f} |")
+        lines.append(f"| {name} | {held}/{episodes} | {100 * dist:.1f} | {frac:.2f} |")
+    print("\n".join(lines))
+    return lines
 
 
 if __name__ == "__main__":

@@ -21,39 +21,19 @@ rows then average over those envs only, and the success line says how many there
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import warnings
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import torch
+from tensordict import TensorDictBase
 
-if TYPE_CHECKING:
-    from trainer.config import TrainConfig
-    from trainer.models import Agent
-    from trainer.tasks.base import GraspTask
+from trainer.randomness import RandomStreams
+from trainer.session import EvalSession
+from trainer.tasks import GraspTask
+from trainer.tasks.terms import reward_output_key, reward_terms
+from trainer.training.grasp_starts import record_grasp_starts
 
 COLUMNS = ("palm_z", "lowest_pad_z", "pads_near", "pad_distance", "centre_rise", "lowest_rise",
            "palm_xy_distance", "std_pose", "std_hand")
-
-
-def load_run_env(
-    run_dir: Path, envs: int, seed: int, h_bar: float | None = None
-) -> tuple[TrainConfig, Agent, GraspTask]:
-    """The run's config and last checkpoint's agent, and a fresh env of ``envs`` envs of its
-    env config (uncompiled; ``h_bar``: the lift target instead of the run's, m)."""
-    from trainer.tasks import make_env
-    from trainer.training.checkpoint import load_agent
-
-    cfg, agent = load_agent(run_dir)
-    env_cfg = dataclasses.replace(cfg.env, num_envs=envs, compile=False)
-    if h_bar is not None:
-        env_cfg = dataclasses.replace(env_cfg, reward=dataclasses.replace(
-            env_cfg.reward, h_bar=h_bar, h_bar_start=h_bar))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        env = make_env(env_cfg, seed=seed)
-    return cfg, agent, env
 
 
 def probe(run_dir: Path, envs: int = 32, sample: bool = False, seed: int = 7,
@@ -69,58 +49,36 @@ def probe(run_dir: Path, envs: int = 32, sample: bool = False, seed: int = 7,
     reward and success use [the run's ``reward.h_bar``]. ``grasp_starts``: the envs start
     along their scripted grasps where one lifted, and everything is averaged over those envs
     (the earnings' ``envs`` says how many)."""
-    from trainer.evaluation import run_episodes
-    from trainer.tasks.terms import reward_output_key, reward_terms
-
-    cfg, agent, env = load_run_env(run_dir, envs, seed, h_bar)
+    session = EvalSession.load(run_dir, h_bar=h_bar)
+    env = session.env(envs, seed, compile=False, quiet=True)
     env_cfg = env.cfg
     chosen = torch.ones(envs, dtype=torch.bool)
     if grasp_starts:
-        from trainer.randomness import RandomStreams
-        from trainer.training.grasp_starts import record_grasp_starts
-
-        starts = record_grasp_starts(env_cfg, RandomStreams(seed), cfg.run.grasp_start_family,
-                                     rounds=1, phase=cfg.run.grasp_start_phase)
+        starts = record_grasp_starts(env_cfg, RandomStreams(seed),
+                                     session.cfg.run.grasp_start_family, rounds=1,
+                                     phase=session.cfg.run.grasp_start_phase)
         env.set_grasp_starts(starts, 1.0, torch.Generator().manual_seed(seed))
         chosen = starts.valid.any(1).cpu()
     rows: list[dict[str, float | list[float]]] = []
     start_low: list[torch.Tensor] = []
-    reset = env.reset
-
-    def reset_and_note(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
-        """The env's reset, noting each target's lowest point right after it."""
-        out = reset(*args, **kwargs)
-        pos, quat = env.target_pose()
-        start_low[:] = [env.lowest_point(pos, quat, env.target_objects())]
-        return out
-
-    env.reset = reset_and_note
     names = list(reward_terms(env_cfg.reward))
     alive = torch.ones(envs, dtype=torch.bool)
     earned: dict[str, list[torch.Tensor]] = {"reward": [], **{n: [] for n in names}}
-    step = env.step
 
-    def step_and_note(td):  # noqa: ANN001, ANN202
-        """The env's step, noting each env's reward and its terms until its episode's end."""
-        out = step(td)
-        nxt = out["next"]
+    def on_reset(env: GraspTask, td: TensorDictBase) -> None:
+        """Each target's lowest point right after the reset."""
+        pos, quat = env.target_pose()
+        start_low[:] = [env.lowest_point(pos, quat, env.target_objects())]
+
+    def on_step(env: GraspTask, step: int, td: TensorDictBase) -> None:
+        """Each env's reward and its terms until its episode's end, then the row of means."""
+        nxt = td["next"]
         mask = (alive & chosen).to(torch.float32)
         earned["reward"].append(nxt["reward"][:, 0].cpu() * mask)
         for n in names:
             earned[n].append(nxt[reward_output_key(n)][:, 0].cpu() * mask)
         alive.mul_(~nxt["done"][:, 0].cpu())
-        return out
-
-    env.step = step_and_note
-    scales: list[torch.Tensor] = []
-
-    def actor_and_note(td):  # noqa: ANN001, ANN202
-        """The policy, noting the action std it would sample with (state-dependent or not)."""
-        out = agent.actor(td)
-        scales[:] = [out["scale"].cpu()]
-        return out
-
-    def on_step() -> None:
+        scale = td["scale"].cpu()  # the action std the policy would sample with
         pos, quat = env.target_pose()
         ids = env.target_objects()
         low = env.lowest_point(pos, quat, ids)
@@ -133,15 +91,15 @@ def probe(run_dir: Path, envs: int = 32, sample: bool = False, seed: int = 7,
         values = (palm[:, 2], tips[..., 2].amin(-1), (distance < 0.02).sum(-1).float(),
                   distance.clamp_min(0).sum(-1), pos[:, 2] - env.state["start_height"],
                   low - start_low[0], (palm[:, :2] - pos[:, :2]).norm(dim=-1),
-                  scales[0][:, :6].mean(-1), scales[0][:, 6:].mean(-1))
+                  scale[:, :6].mean(-1), scale[:, 6:].mean(-1))
         row: dict[str, float | list[float]] = {
             name: float(v[chosen].float().mean()) for name, v in zip(COLUMNS, values, strict=True)
         }
         row["hand"] = env.state["ctrl"][chosen][:, env.robot.hand.actuators].mean(0).tolist()
         rows.append(row)
 
-    success, length, _ = run_episodes(env, actor_and_note, deterministic=not sample,
-                                      on_step=on_step)
+    success, length, _ = session.run(env, deterministic=not sample, on_reset=on_reset,
+                                     on_step=on_step)
     env.close()
     rewards = torch.stack(earned["reward"]).double()[:, chosen]  # (T, E chosen)
     returns = {"envs": float(chosen.sum()), "steps": float(length[chosen].float().mean()),

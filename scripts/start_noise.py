@@ -22,12 +22,17 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import warnings
 from pathlib import Path
 
 import torch
+from tensordict import TensorDictBase
 
 from trainer.config import ACTION_DIM
+from trainer.randomness import RandomStreams
+from trainer.session import EvalSession
+from trainer.tasks import GraspTask
+from trainer.tasks.starts import GraspStarts
+from trainer.training.run_dir import RunDir
 
 POSE_DIM = 6  # the hand-pose actions come first (trainer.robots.base), then the hand's
 LIFT_ACTION = 2  # the hand pose's z (up) action
@@ -53,57 +58,72 @@ def survive(run_dir: Path, sigmas: list[torch.Tensor], hold: int = 20, lift: flo
     of those envs whose first episode succeeded (``success``) and whose target rose by 1 cm at
     some point (``rose``), and per target object the share that succeeded (``success:NAME``),
     the same envs, starts and noise draws for every setting."""
-    from trainer.objects import resolve_names
-    from trainer.randomness import RandomStreams
-    from trainer.tasks import make_env
-    from trainer.training.grasp_starts import GraspStarts
-    from trainer.training.run_dir import RunDir
-
     run = RunDir(run_dir)
     if not run.grasp_starts.exists():
         raise SystemExit(f"{run_dir} has no grasp_starts.pt: pass a run trained with "
                          "[run] grasp_starts > 0 (it records them when it starts)")
-    cfg = run.load_config().env
+    session = EvalSession.load(run_dir, h_bar=h_bar, policy=False)
+    cfg = session.cfg.env
     robot = cfg.robot if hand_step is None else dataclasses.replace(
         cfg.robot, hand_relative_step=hand_step)
-    reward = cfg.reward if h_bar is None else dataclasses.replace(
-        cfg.reward, h_bar=h_bar, h_bar_start=h_bar)
-    cfg = dataclasses.replace(cfg, compile=False, robot=robot, reward=reward)
     starts = GraspStarts.load(run.grasp_starts)
+    names = session.names()
     rows = []
     for sigma in sigmas:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            env = make_env(cfg, seed=RandomStreams(seed))
+        env = session.env(cfg.num_envs, RandomStreams(seed), compile=False, robot=robot,
+                          quiet=True)
         env.set_grasp_starts(starts, 1.0, torch.Generator().manual_seed(seed))
-        noise = torch.Generator().manual_seed(seed + 1)
-        td = env.reset()
-        chosen = td["grasp_start"][:, 0].cpu().clone()
-        target = env.target_objects().cpu()
-        n = cfg.num_envs
-        outcome = torch.full((n,), -1)  # first episode: -1 running, 0 failed, 1 succeeded
-        rose = torch.zeros(n, dtype=torch.bool)
-        for step in range(cfg.max_steps):
-            action = torch.randn(n, ACTION_DIM, generator=noise) * sigma
-            action[:, POSE_DIM:] += close
-            if step >= hold:
-                action[:, LIFT_ACTION] += lift
-            td["action"] = action.clamp(-1.0, 1.0).to(env.device)
-            out = env.step(td)["next"]
-            live = outcome < 0
-            rose |= live & (out["lift_height"][:, 0].cpu() >= 0.01)
-            done = out["done"][:, 0].cpu() & live
-            outcome[done] = out["success"][:, 0].cpu()[done].long()
-            td = out
+        policy = FixedGaussian(sigma, hold, lift, close, cfg.num_envs, seed + 1)
+        success, _, target = session.run(env, actor=policy, **policy.hooks())
         env.close()
-        row = {"success": float((outcome[chosen] == 1).float().mean()),
-               "rose": float(rose[chosen].float().mean())}
-        for i, name in enumerate(resolve_names(cfg.objects, cfg.data_dir)):
+        chosen = policy.chosen
+        row = {"success": float(success[chosen].float().mean()),
+               "rose": float(policy.rose[chosen].float().mean())}
+        for i, name in enumerate(names):
             mine = chosen & (target == i)
             if mine.any():
-                row[f"success:{name}"] = float((outcome[mine] == 1).float().mean())
+                row[f"success:{name}"] = float(success[mine].float().mean())
         rows.append(row)
     return int(chosen.sum()), rows
+
+
+class FixedGaussian:
+    """The fixed Gaussian policy of one noise setting (the actor of ``EvalSession.run``: hand
+    pose still for ``hold`` actions, then the palm up at mean ``lift``, the hand at mean
+    ``close``, each action plus noise of std ``sigma`` (11,) drawn from ``seed``), and what the
+    first episodes did (its hooks): ``chosen`` (E,) the envs that start from a grasp, ``rose``
+    (E,) those whose target rose by 1 cm before their episode ended."""
+
+    def __init__(self, sigma: torch.Tensor, hold: int, lift: float, close: float, envs: int,
+                 seed: int) -> None:
+        self.sigma, self.hold, self.lift, self.close = sigma, hold, lift, close
+        self.noise = torch.Generator().manual_seed(seed)
+        self.actions = 0
+        self.live = torch.ones(envs, dtype=torch.bool)
+        self.rose = torch.zeros(envs, dtype=torch.bool)
+        self.chosen = torch.zeros(envs, dtype=torch.bool)
+
+    def __call__(self, td: TensorDictBase) -> TensorDictBase:
+        action = torch.randn(td.shape[0], ACTION_DIM, generator=self.noise) * self.sigma
+        action[:, POSE_DIM:] += self.close
+        if self.actions >= self.hold:
+            action[:, LIFT_ACTION] += self.lift
+        td["action"] = action.clamp(-1.0, 1.0).to(td.device)
+        self.actions += 1
+        return td
+
+    def hooks(self) -> dict[str, object]:
+        return {"on_reset": self.on_reset, "on_step": self.on_step,
+                "on_episode": self.on_episode}
+
+    def on_reset(self, env: GraspTask, td: TensorDictBase) -> None:
+        self.chosen[:] = td["grasp_start"][:, 0].cpu()
+
+    def on_step(self, env: GraspTask, step: int, td: TensorDictBase) -> None:
+        self.rose |= self.live & (td["next", "lift_height"][:, 0].cpu() >= 0.01)
+
+    def on_episode(self, env: GraspTask, ended: torch.Tensor, success: torch.Tensor) -> None:
+        self.live &= ~ended
 
 
 def main(argv: list[str] | None = None) -> list[str]:

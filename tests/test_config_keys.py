@@ -224,16 +224,16 @@ def test_set_errors_on_every_command_are_one_line(
 def test_grasp_passes_set_with_its_own_options(
     monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
 ) -> None:
-    import trainer.grasps
+    import trainer.grasps.trials
 
     calls = []
-    monkeypatch.setattr(trainer.grasps, "measure", lambda *a, **kw: calls.append(kw) or [])
+    monkeypatch.setattr(trainer.grasps.trials, "measure", lambda *a, **kw: calls.append(kw) or [])
     code, _, err = invoke(
         ["grasp", "--objects", "builtin_box", "--hold-tips", "1", "--set", "reward.h_bar=0.1",
          "--set", "physics.noslip_iterations=0"], monkeypatch, capsys,
     )
     assert code == 0, err
-    assert calls == [{"reward": {"h_bar": 0.1, "hold_tips": 1},
+    assert calls == [{"hold": False, "reward": {"h_bar": 0.1, "hold_tips": 1},
                       "physics": {"noslip_iterations": 0}}]
     code, _, err = invoke(["grasp", "--hold-tips", "1", "--set", "reward.hold_tips=3"],
                           monkeypatch, capsys)

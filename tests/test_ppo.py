@@ -24,9 +24,10 @@ from trainer.cli import cli
 from trainer.cli import main as trainer_main
 from trainer.config import RewardConfig, load_train_config
 from trainer.errors import TrainerError
-from trainer.evaluation import evaluate, run_episodes
+from trainer.evaluation import evaluate
 from trainer.models import Agent, RunningNorm
 from trainer.ppo import minibatch_size, train, train_run, warmup_config
+from trainer.session import run_episodes
 from trainer.tasks import make_env, observation_spec
 from trainer.training.checkpoint import agent_part, copy_agent_parts, load_agent
 from trainer.training.curriculum import LiftCurriculum

@@ -9,20 +9,17 @@ the targets start) and scripts/grasp_offset.py (where a policy holds each object
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import pytest
 
 from geomprep.config import Config
+from tests.tiny_runs import script, tiny_dice_mug_run, tiny_run
 from trainer.training.run_dir import RunDir
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-
-import home_heights  # noqa: E402
 
 
 def test_home_heights_lists_each_object(builtin_data: Config) -> None:
+    home_heights = script("scripts", "home_heights")
     lines = home_heights.main(["builtin_dice,builtin_cylinder", str(builtin_data.data_dir)])
     rows = {line.split(" | ")[0]: line.split(" | ") for line in lines[2:]}
     assert rows["builtin_dice"][1] == "0"  # a lying dice never reaches the hand at 0.14 m
@@ -37,7 +34,8 @@ def test_tilt_between_orientations() -> None:
     import math
 
     import torch
-    from early_lifts import tilt_degrees
+
+    tilt_degrees = script("scripts", "early_lifts").tilt_degrees
 
     half = math.sqrt(0.5)
     before = torch.tensor([[1.0, 0, 0, 0], [1.0, 0, 0, 0], [half, 0, half, 0]])
@@ -47,29 +45,35 @@ def test_tilt_between_orientations() -> None:
 
 
 
-def tiny_trained_run(builtin_data: Config, tmp_path: Path):  # noqa: ANN201
+def test_early_lifts_runs_the_initial_policy(
+    builtin_data: Config, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """scripts/early_lifts.py: the untrained policy's held successes (none in a few steps on the
+    dice), counted over every env and step."""
+    early_lifts = script("scripts", "early_lifts")
+
+    events = early_lifts.early_lifts("builtin_dice", str(builtin_data.data_dir), envs=4,
+                                     steps=8, h_bar=0.03)
+    assert all(0 <= step < 8 and tilt >= 0 for step, tilt, _ in events)
+    early_lifts.main(["builtin_dice", str(builtin_data.data_dir), "--envs", "4", "--steps", "8"])
+    assert capsys.readouterr().out.startswith(
+        f"held successes at 0.03 m (lift_clearance 0 m) in 8 steps x 4 envs: {len(events)}")
+
+
+@pytest.fixture(scope="module")
+def box_run(builtin_data: Config, tmp_path_factory: pytest.TempPathFactory) -> RunDir:
     """One PPO iteration on the built-in box (4 envs, 12-action episodes): a run directory
     with a checkpoint, for the scripts that read one."""
-    from trainer.config import load_train_config
-    from trainer.ppo import train
-
-    cfg = load_train_config(
-        env={"num_envs": 4, "objects": "builtin_box", "representation": "bbox",
-             "data_dir": builtin_data.data_dir, "max_steps": 12},
-        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
-             "hidden": (16, 16)},
-        run={"total_steps": 32, "checkpoint_every": 1, "seed": 0},
-    )
-    return train(cfg, tmp_path / "run", progress=False)
+    return tiny_run(builtin_data, tmp_path_factory.mktemp("box") / "run", "builtin_box")
 
 
-def test_policy_probe_follows_an_episode(builtin_data: Config, tmp_path: Path) -> None:
+def test_policy_probe_follows_an_episode(box_run: RunDir) -> None:
     """scripts/policy_probe.py on a tiny trained run: one row per action of a whole episode,
     the target starting on the table (no rise at the first action), the hand's 5 servo targets
     in each row, and the printed table's rows every ``--every`` actions plus the last."""
-    import policy_probe
+    policy_probe = script("scripts", "policy_probe")
 
-    run = tiny_trained_run(builtin_data, tmp_path)
+    run = box_run
     rows, success, earned = policy_probe.probe(run.path, envs=3, h_bar=0.05, gammas=(0.9, 1.0))
     assert len(rows) == 12 and 0.0 <= success <= 1.0
     # the discounted return weighs later rewards less; with gamma 1 it is the plain sum, the
@@ -101,13 +105,14 @@ def test_training_with_grasp_starts_and_probing_them(
     over the envs whose scripted grasp lifted and says how many there were."""
     import dataclasses
 
-    import policy_probe
     import torch
 
     import trainer.ppo
     from trainer.config import load_train_config
     from trainer.ppo import train
-    from trainer.training.grasp_starts import GraspStarts
+    from trainer.tasks.starts import GraspStarts
+
+    policy_probe = script("scripts", "policy_probe")
 
     cfg = load_train_config(
         env={"num_envs": 4, "objects": "builtin_cylinder", "representation": "bbox",
@@ -143,10 +148,10 @@ def test_object_curriculum_reads_each_kept_checkpoint(builtin_data: Config, tmp_
     per-object curriculum is a one-line error."""
     import json
 
-    import object_curriculum
-
     from trainer.config import config_dict, load_train_config
     from trainer.ppo import train
+
+    object_curriculum = script("scripts", "object_curriculum")
 
     cfg = load_train_config(
         env={"num_envs": 4, "objects": "builtin_box,builtin_dice", "representation": "bbox",
@@ -182,10 +187,11 @@ def test_start_noise_replays_the_same_starts_per_setting(
     """scripts/start_noise.py on a tiny run with grasp starts: one row per noise setting over
     the envs that start along a grasp; the noise-free setting is deterministic (the same starts
     and draws each time), and a run without recorded starts is a one-line error."""
-    import start_noise
 
     from trainer.config import load_train_config
     from trainer.ppo import train
+
+    start_noise = script("scripts", "start_noise")
 
     cfg = load_train_config(
         env={"num_envs": 4, "objects": "builtin_cylinder", "representation": "bbox",
@@ -213,14 +219,13 @@ def test_start_noise_replays_the_same_starts_per_setting(
         start_noise.survive(run.path, [quiet])
 
 
-def test_episode_outcomes_puts_each_episode_in_one_class(
-    builtin_data: Config, tmp_path: Path
-) -> None:
+def test_episode_outcomes_puts_each_episode_in_one_class(box_run: RunDir) -> None:
     """scripts/episode_outcomes.py: the classes from the centre rise (a success whatever its
     rise; never up 1 cm; up then 3 cm below the peak at the end; up and staying), and on a tiny
     trained run one line per env whose counts add up to the envs."""
-    import episode_outcomes as eo
     import torch
+
+    eo = script("scripts", "episode_outcomes")
 
     up_and_down = torch.tensor([0.0, 0.05, 0.10, 0.04])
     assert eo.classify(up_and_down, True, 0.01, 0.03) == "success"
@@ -228,7 +233,7 @@ def test_episode_outcomes_puts_each_episode_in_one_class(
     assert eo.classify(up_and_down, False, 0.01, 0.03) == "dropped"
     assert eo.classify(torch.tensor([0.0, 0.05, 0.04]), False, 0.01, 0.03) == "stalled"
 
-    run = tiny_trained_run(builtin_data, tmp_path)
+    run = box_run
     episodes = eo.outcomes(run.path, envs=3, h_bar=0.05)
     assert len(episodes) == 3
     for ep in episodes:
@@ -244,7 +249,7 @@ def test_metrics_blocks_weights_rates_by_episodes(tmp_path: Path) -> None:
     """A block's held rate is over the episodes that ended in it, not a mean of iterations: an
     iteration with 30 episodes at 0.5 and one with 10 at 0.1 make 0.4, not 0.3; the next block
     starts after 250,000 env steps, and unstable resets add up."""
-    import metrics_blocks
+    metrics_blocks = script("scripts", "metrics_blocks")
 
     header = ("iteration,env_steps,wall_time_s,episodes,target_success_rate,object_success_rate,"
               "episode_return,h_bar,action_std,unstable_resets")
@@ -265,51 +270,41 @@ def test_metrics_blocks_weights_rates_by_episodes(tmp_path: Path) -> None:
         metrics_blocks.main([str(tmp_path / "missing")])
 
 
-def _tiny_dice_mug_run(builtin_data: Config, tmp_path: Path) -> RunDir:
-    """A one-iteration bbox run on the built-in dice and mug (an untrained policy)."""
-    from trainer.config import load_train_config
-    from trainer.ppo import train
-
-    cfg = load_train_config(
-        env={"num_envs": 4, "objects": "builtin_dice,builtin_mug", "representation": "bbox",
-             "data_dir": builtin_data.data_dir, "max_steps": 12},
-        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
-             "hidden": (16, 16)},
-        run={"total_steps": 32, "seed": 0},
-    )
-    return train(cfg, tmp_path / "run", progress=False)
+@pytest.fixture(scope="module")
+def dice_mug(builtin_data: Config, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A tiny untrained run on the built-in dice and mug (both land either way up)."""
+    return tiny_dice_mug_run(builtin_data, tmp_path_factory.mktemp("dice-mug") / "run").path
 
 
-def test_eval_upright_splits_exactly_the_episodes_of_trainer_eval(
-    builtin_data: Config, tmp_path: Path
-) -> None:
+def test_eval_upright_splits_exactly_the_episodes_of_trainer_eval(dice_mug: Path) -> None:
     """scripts/eval_upright.py replays trainer eval's episodes: per object its upright and
     upside-down episodes add up to the eval's episodes, their held ones to its successes."""
-    import eval_upright
-
     from trainer.evaluation import evaluate
 
-    run = _tiny_dice_mug_run(builtin_data, tmp_path)
-    result = evaluate(run.path, episodes_per_object=12)
-    rows = eval_upright.split_by_start_up(run.path, episodes_per_object=12)
+    eval_upright = script("scripts", "eval_upright")
+
+    result = evaluate(dice_mug, episodes_per_object=12)
+    rows = eval_upright.split_by_start_up(dice_mug, episodes_per_object=12)
     assert [row[0] for row in rows] == result.names
     assert [row[1] + row[3] for row in rows] == result.episodes == [12, 12]
     assert [row[2] + row[4] for row in rows] == result.successes
     # Both ways up occur (a dice or mug reset lands on any side), so the split is exercised.
     assert all(row[1] > 0 and row[3] > 0 for row in rows)
+    lines = eval_upright.main([str(dice_mug), "--episodes-per-object", "12"])
+    assert lines[2] == f"| builtin_dice | {rows[0][2]}/{rows[0][1]} | {rows[0][4]}/{rows[0][3]} | "\
+        f"{result.successes[0]}/12 |" and len(lines) == 4
 
 
-def test_grasp_offset_measures_the_pads_in_the_object_box_frame(
-    builtin_data: Config, tmp_path: Path
-) -> None:
+def test_grasp_offset_measures_the_pads_in_the_object_box_frame(dice_mug: Path) -> None:
     """scripts/grasp_offset.py: the pads' centroid in the box frame (a turned, shifted box), and
     per object the episodes trainer eval runs (an untrained policy holds none: no offset)."""
     import math
 
-    import grasp_offset
     import torch
 
     from trainer.evaluation import evaluate
+
+    grasp_offset = script("scripts", "grasp_offset")
 
     # A box 0.2 x 0.1 x 0.04 m, its centre 0.05 m along the object's x axis, the object turned
     # 90 degrees about z and standing at (1, 0, 0): the box's x axis points along the world's y.
@@ -324,10 +319,12 @@ def test_grasp_offset_measures_the_pads_in_the_object_box_frame(
     assert distance.item() == pytest.approx(0.08, abs=1e-6)
     assert fraction.item() == pytest.approx(0.08 / 0.1, abs=1e-5)  # along the box's long axis
 
-    run = _tiny_dice_mug_run(builtin_data, tmp_path)
-    result = evaluate(run.path, episodes_per_object=6)
-    rows = grasp_offset.grasp_offsets(run.path, episodes_per_object=6)
+    result = evaluate(dice_mug, episodes_per_object=6)
+    rows = grasp_offset.grasp_offsets(dice_mug, episodes_per_object=6)
     assert [row[0] for row in rows] == result.names
     assert [row[1] for row in rows] == result.episodes
     assert [row[2] for row in rows] == result.successes
     assert all(math.isnan(row[3]) for row in rows if row[2] == 0)
+    lines = grasp_offset.main([str(dice_mug), "--episodes-per-object", "6", "--objects",
+                               "builtin_mug"])
+    assert lines[2] == "| builtin_mug | 0/6 | nan | nan |" and len(lines) == 3  # none held

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import importlib.util
+import re
 from pathlib import Path
 
 import pytest
@@ -59,8 +60,12 @@ def test_family_picks_the_script_and_its_rest_runs_to_the_end(
     assert float(lift["steps"]) <= 140 and float(rest["steps"]) == 140
     assert int(rest["lifted"]) == 0 and float(rest["sum_success"]) == 0
     assert float(rest["sum_contact"]) > 0
-    assert "lifts until action 190; episodes of 140 actions cut its lift short" in (
-        capsys.readouterr().err)
+    printed = capsys.readouterr()
+    assert "lifts until action 190; episodes of 140 actions cut its lift short" in printed.err
+    # The ratio to the baseline measured in the same run: rest over lift, per gamma.
+    lines = printed.out.splitlines()
+    assert lines[-2].startswith("rest / lift, mean discounted return")
+    assert re.fullmatch(r"builtin_box: γ 0\.99: -?[0-9.]+x, γ 0\.998: -?[0-9.]+x", lines[-1])
 
 
 @pytest.mark.parametrize(("family", "message"), [

@@ -191,7 +191,7 @@ def test_filming_a_tape_renders_the_frames_of_a_live_recording(builtin_data: Con
     those frames are exactly what a recorder capturing that env live renders (the tape copies
     the states, it does not alias the backend's buffers, and the camera replays the same way),
     the hold after the episodes included."""
-    from trainer.evaluation import successes_first
+    from trainer.session import successes_first
     from trainer.video import EnvRecorder, StateTape
 
     cfg = load_env_config(

@@ -196,9 +196,9 @@ def lift_run(builtin_data: Config, tmp_path_factory: pytest.TempPathFactory) -> 
 
 def _bins_hold(run_dir: Path) -> tuple[list[str], list[str]]:
     """(objects in the run's bins, objects of its set in none), from the run's own env."""
-    from trainer.evaluation import run_bins
+    from trainer.session import EvalSession
 
-    env = run_bins(RunDir(run_dir).load_config(), 1)
+    env = EvalSession(RunDir(run_dir).load_config()).bin_env(1)
     names = env.objects.names
     held = {names[k] for k in env.layouts.unique().tolist()}
     env.close()
@@ -239,7 +239,7 @@ def test_lift_eval_sample_draws_the_actions_and_says_so(
     (eval-sampled) and the table say which, and the deterministic eval is left alone."""
     import torch
 
-    from trainer.evaluation import run_episodes
+    from trainer.session import run_episodes
     from trainer.tasks import make_env
 
     code, _, err = invoke_all(["eval", str(lift_run), "--episodes-per-object", "2"],
@@ -286,6 +286,7 @@ def test_lift_eval_pads_counts_held_successes(
     import torch
 
     from trainer.evaluation import SuccessPads
+    from trainer.session import Episodes
 
     code, out, err = invoke_all(["eval", str(lift_run), "--episodes-per-object", "2",
                                  "--hold-tips", "0", "--pads", "--out", "eval-pads"],
@@ -297,11 +298,16 @@ def test_lift_eval_pads_counts_held_successes(
     assert "| object | successes | held | nearest pad, median |" in (
         lift_run / "eval-pads" / "table.md").read_text()
     # The counting itself: two successes of object 1, one held (two pads within 2 cm).
-    pads = SuccessPads(3)
-    pads.ids.append(torch.tensor([1, 1]))
-    pads.pads.append(torch.tensor([[0.0, 0.01, 0.3, 0.3, 0.3], [0.25, 0.3, 0.3, 0.3, 0.22]]))
-    assert pads.held() == [0, 1, 0]
-    assert pads.nearest()[0] is None and pads.nearest()[1] == pytest.approx(0.0)
+    # (A third episode, of object 2, failed: its distances are not counted.)
+    pads = SuccessPads()
+    nan = float("nan")
+    pads.parts.append(torch.tensor([[0.0, 0.01, 0.3, 0.3, 0.3], [0.25, 0.3, 0.3, 0.3, 0.22],
+                                    [nan] * 5]))
+    episodes = Episodes(torch.tensor([True, True, False]), torch.tensor([5, 7, 9]),
+                        torch.tensor([1, 1, 2]))
+    assert pads.held(episodes, 3) == [0, 1, 0]
+    nearest = pads.nearest(episodes, 3)
+    assert nearest[0] is None and nearest[1] == pytest.approx(0.0) and nearest[2] is None
 
 
 def test_bin_eval_counts_episodes_per_target(
@@ -359,14 +365,13 @@ def test_forced_targets_are_the_asked_object(bin_run: Path) -> None:
     measured from its own height at the reset."""
     import torch
 
-    from trainer.evaluation import force_targets, play_bins
+    from trainer.session import EvalSession, force_targets
 
     held, _ = _bins_hold(bin_run)
     cfg = RunDir(bin_run).load_config()
-    env, ids, slots = play_bins(cfg, held[-1], 2)
+    env, ids, slots = EvalSession(cfg).play_env(held[-1], 2, seed=7)
     k = env.objects.names.index(held[-1])
     assert ids == [0, 1] and (slots[2:] == -1).all()  # one bin: every env holds it
-    env.set_seed(7)
     env.reset()
     td = force_targets(env, slots)
     assert (env.target_objects()[ids] == k).all() and (td["object_id"][ids, 0] == k).all()

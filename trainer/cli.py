@@ -257,11 +257,10 @@ def grasp(
     if hold_tips is not None:
         _at_least("--hold-tips", hold_tips, 0)
     given = _sets(sets)
-    import time
-
-    from trainer.grasps import family, family_variants, measure
+    from trainer.grasps import family, family_variants
     from trainer.grasps.families import merge_overrides
     from trainer.grasps.outcomes import write_rows
+    from trainer.grasps.trials import run_trials
 
     fam = family(family_name)
     names = None if variants == "all" else [v for v in variants.split(",") if v]
@@ -277,17 +276,14 @@ def grasp(
     ) if value is not None})
     env = merge_overrides(dotted_overrides(given), env)
     rows: list[dict] = []
-    for name, variant in chosen.items():
-        start = time.perf_counter()
-        batch = measure(family_name, name, variant, objects.split(","), trials, seed,
-                        config_path, **env)
-        rows += batch
-        lifted, total = sum(r["lifted"] for r in batch), sum(r["trials"] for r in batch)
-        click.echo(f"\n### {family_name} {name} ({lifted}/{total} lifted, "
-                   f"{time.perf_counter() - start:.0f} s)\n")
+    for batch in run_trials([(family_name, n, v) for n, v in chosen.items()],
+                            objects.split(","), trials, [seed], config_path=config_path, **env):
+        rows += batch.rows
+        click.echo(f"\n### {family_name} {batch.variant} ({batch.lifted}/{batch.trials} lifted, "
+                   f"{batch.seconds:.0f} s)\n")
         click.echo("| object | lifted | dropped | no grip | pushed | max rise cm | held lifts |")
         click.echo("|---|---:|---:|---:|---:|---:|---:|")
-        for r in batch:
+        for r in batch.rows:
             click.echo(f"| {r['object']} | {r['lifted']} | {r['dropped']} | {r['no_grip']} | "
                        f"{r['pushed']} | {r['max_rise_cm']} | {r['held_lifts']} |")
         if out is not None:
@@ -700,29 +696,18 @@ def play(
         raise TrainerError(f"--tries {tries}: must be >= --episodes ({episodes})")
     _at_least("--seed", seed, 0)
     _device(device)
-    from trainer.evaluation import play_bins, run_episodes, successes_first
-    from trainer.objects import resolve_names
-    from trainer.randomness import RandomStreams
-    from trainer.tasks import make_env
-    from trainer.training.checkpoint import load_agent
+    from trainer.session import EvalSession, successes_first
     from trainer.video import EnvRecorder, StateTape
 
-    cfg, agent = load_agent(_run_dir(run_dir), device)
-    names = resolve_names(object_name, cfg.env.data_dir)
+    session = EvalSession.load(_run_dir(run_dir), device)
+    cfg = session.cfg
+    names = session.names(object_name)
     if len(names) != 1:
         raise TrainerError(f"--object {object_name}: names several objects: name one")
-    if cfg.env.task == "bin":
-        env, ids, slots = play_bins(cfg, names[0], tries)
-        env.set_seed(seed)
-    else:
-        env_cfg = dataclasses.replace(cfg.env, objects=names[0], num_envs=tries)
-        env = make_env(env_cfg, RandomStreams(seed, legacy=not cfg.run.random_streams))
-        ids, slots = list(range(tries)), None
+    env, ids, slots = session.play_env(names[0], tries, seed)
     tape = StateTape(env)
-    success, length, _ = run_episodes(
-        env, agent.actor, on_step=tape.capture, target_slots=slots, watch=ids,
-        hold_finished=True,
-    )
+    success, length, _ = session.run(env, target_slots=slots, watch=ids, hold_finished=True,
+                                     on_step=tape.on_step)
     filmed = successes_first(ids, success, min(episodes, 4))  # at most 4 tiles
     tape.end_at(int(length[filmed].max()))  # and 1 s more, so it does not end on the lift
     recorder = EnvRecorder(env, filmed, width=480, height=360)

@@ -14,21 +14,18 @@ from __future__ import annotations
 import contextlib
 import csv
 import dataclasses
-from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import torch
 from tensordict import TensorDictBase
-from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from geomgrasp.files import atomic_path
-from trainer.config import EnvConfig, TrainConfig
 from trainer.errors import TrainerError
-from trainer.objects import resolve_names
-from trainer.randomness import RandomStreams, run_streams
+from trainer.grasps.outcomes import HELD_DISTANCE, HELD_PADS
+from trainer.grasps.runner import keypoint_distances
 from trainer.report import task_label
-from trainer.tasks import GraspTask, make_env
-from trainer.training.checkpoint import load_agent
+from trainer.session import EVAL_SEED, MAX_ENVS, Episodes, EvalSession
+from trainer.tasks import GraspTask
 from trainer.training.run_dir import RunDir
 
 MAX_ROUNDS = 20
@@ -91,71 +88,12 @@ class EvalResult:
         return text
 
 
-def force_targets(env: GraspTask, slots: torch.Tensor) -> TensorDictBase:
-    """Right after a reset: make slot ``slots[i]`` the target of env i's episode (rows with
-    ``slots[i] < 0`` keep theirs); returns the reset observation of the new targets
-    (``GraspTask.set_targets``)."""
-    return env.set_targets(slots)
-
-
-def run_episodes(
-    env: GraspTask,
-    actor: torch.nn.Module,
-    deterministic: bool = True,
-    on_step: Callable[[], None] | None = None,
-    target_slots: torch.Tensor | None = None,
-    watch: Sequence[int] | None = None,
-    hold_finished: bool = False,
-    at_success: Callable[[torch.Tensor], None] | None = None,
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """One episode in every env from a fresh reset; returns (success (E,) bool, length (E,),
-    target object id (E,), taken right after the reset), on the CPU.
-
-    Envs that finish early keep stepping (nothing is reset) but their outcome is frozen; the
-    rollout ends when every env (or every env of ``watch``) has finished. ``target_slots`` (E,):
-    the target slot of each env's episode (``force_targets``; -1: the env's own draw).
-    ``hold_finished``: a finished env holds its last commands (``GraspTask.hold_action``)
-    instead of following the policy past its episode's end (videos: a lift stays lifted).
-    ``at_success(mask)`` is called right after a step at which some episodes succeeded, with
-    (E,) bool (CPU) marking them, the env in that step's state."""
-    E = env.num_envs
-    success = torch.zeros(E, dtype=torch.bool)
-    length = torch.zeros(E, dtype=torch.long)
-    finished = torch.zeros(E, dtype=torch.bool)
-    watched = torch.as_tensor(list(range(E)) if watch is None else list(watch), dtype=torch.long)
-    mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
-    td: TensorDictBase = env.reset()
-    if target_slots is not None:
-        td = force_targets(env, target_slots)
-    targets = env.target_objects().cpu()
-    with torch.no_grad(), set_exploration_type(mode):
-        for _ in range(env.cfg.max_steps):
-            td = actor(td)
-            if hold_finished and finished.any():
-                held = finished.to(td.device)
-                td["action"][held] = env.hold_action()[held]
-            td = env.step(td)
-            if on_step is not None:
-                on_step()
-            done = td["next", "done"][:, 0].cpu() & ~finished
-            succeeded = done & td["next", "success"][:, 0].cpu()
-            success |= succeeded
-            if at_success is not None and bool(succeeded.any()):
-                at_success(succeeded)
-            length[~finished] += 1
-            finished |= done
-            if finished[watched].all():
-                break
-            td = step_mdp(td)
-    return success, length, targets
-
-
 def evaluate(
     run_dir: Path,
     episodes_per_object: int = 10,
     objects: str | None = None,
-    seed: int = 12345,
-    max_envs: int = 1024,
+    seed: int = EVAL_SEED,
+    max_envs: int = MAX_ENVS,
     device: str | None = None,
     max_rounds: int = MAX_ROUNDS,
     hold_tips: int | None = None,
@@ -194,174 +132,86 @@ def evaluate(
         out = "eval-sampled" if sample else "eval"
     if not out or Path(out).name != out or out in (".", ".."):
         raise TrainerError(f"out {out!r}: give a folder name inside the run directory, e.g. eval")
-    cfg, agent = load_agent(run_dir, device, iteration)
-    reward = cfg.env.reward
-    if hold_tips is not None:
-        reward = dataclasses.replace(reward, hold_tips=hold_tips)
-    if lift_clearance is not None:
-        reward = dataclasses.replace(reward, lift_clearance=lift_clearance)
-    if h_bar is not None:
-        # One height: the curriculum's start and hold_from (training's) may not exceed it.
-        reward = dataclasses.replace(
-            reward, h_bar=h_bar, h_bar_start=h_bar, hold_from=min(reward.hold_from, h_bar)
-        )
-    cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, reward=reward))
-    names = resolve_names(objects or cfg.env.objects, cfg.env.data_dir)
-    collector = SuccessPads(len(names)) if pads else None
-    streams = RandomStreams(seed, legacy=not cfg.run.random_streams)
-    with _sampling(streams, cfg.env.device) if sample else contextlib.nullcontext():
+    session = EvalSession.load(run_dir, device, iteration, h_bar=h_bar, hold_tips=hold_tips,
+                               lift_clearance=lift_clearance)
+    cfg = session.cfg
+    names = session.names(objects)
+    collector = SuccessPads() if pads else None
+    hooks = collector.hooks() if collector is not None else {}
+    with session.sampling(seed) if sample else contextlib.nullcontext():
         if cfg.env.task == "bin":
-            result = _evaluate_bin(
-                cfg, agent.actor, names, episodes_per_object, seed, max_envs, max_rounds,
-                not sample, collector,
+            result, episodes = _evaluate_bin(
+                session, names, episodes_per_object, seed, max_envs, max_rounds, not sample,
+                hooks,
             )
         else:
-            result = _evaluate_lift(
-                cfg.env, agent.actor, names, episodes_per_object, seed, max_envs, not sample,
-                collector, legacy=not cfg.run.random_streams,
-            )
+            episodes = session.lift_episodes(names, episodes_per_object, seed,
+                                             deterministic=not sample, max_envs=max_envs,
+                                             **hooks)
+            result = EvalResult(names, *_counts(episodes, len(names)), task=cfg.env.task,
+                                representation=cfg.env.representation)
     result = dataclasses.replace(
         result, success_text=cfg.env.reward.success_text(), iteration=iteration, sampled=sample
     )
     if collector is not None:
-        result = dataclasses.replace(result, held=collector.held(),
-                                     nearest_pad=collector.nearest())
+        result = dataclasses.replace(result, held=collector.held(episodes, len(names)),
+                                     nearest_pad=collector.nearest(episodes, len(names)))
     write_eval(RunDir(Path(run_dir)), result, out)
     return result
 
 
-@contextlib.contextmanager
-def _sampling(streams: RandomStreams, device: str) -> Iterator[None]:
-    """The global torch generators (the policy's sampling) seeded with the ``actions`` stream of
-    the evaluation's seed inside, and restored after: a sampled evaluation repeats, and leaves
-    the caller's streams alone."""
-    where = torch.device(device)
-    devices = [where.index or 0] if where.type == "cuda" else []
-    with torch.random.fork_rng(devices=devices):
-        streams.seed_global_torch("actions")
-        yield
+def _counts(episodes: Episodes, num_objects: int) -> tuple[list[int], list[int]]:
+    """Per object: (episodes with it as the target, successes)."""
+    target = episodes.target
+    return (torch.bincount(target, minlength=num_objects).tolist(),
+            torch.bincount(target[episodes.success], minlength=num_objects).tolist())
 
 
 class SuccessPads:
-    """Per object, the fingertip pads' distances to the target at the success steps
-    (``run_episodes(at_success=...)``), for held-or-tossed counts."""
+    """Per episode, the fingertip pads' distances (m) to the target at its success step: the
+    ``on_reset`` and ``on_episode`` hooks of ``run_episodes`` / ``EvalSession.lift_episodes``
+    (``hooks()``), for held-or-tossed counts over the episodes they returned (``held``,
+    ``nearest``)."""
 
-    def __init__(self, num_objects: int) -> None:
-        self.num_objects = num_objects
-        self.ids: list[torch.Tensor] = []
-        self.pads: list[torch.Tensor] = []
+    def __init__(self) -> None:
+        self.parts: list[torch.Tensor] = []
+        """Per run, (E, 5) the pads' distances at each env's success step (NaN: none)."""
 
-    def hook(self, env: GraspTask, offset: int = 0) -> Callable[[torch.Tensor], None]:
-        """The ``at_success`` callback for ``env``, its object ids shifted by ``offset``."""
-        from trainer.grasps import keypoint_distances
+    def hooks(self) -> dict[str, object]:
+        """The keyword arguments that make a run call this collector."""
+        return {"on_reset": self.on_reset, "on_episode": self.on_episode}
 
-        def at_success(mask: torch.Tensor) -> None:
-            self.ids.append(env.target_objects().cpu()[mask] + offset)
-            self.pads.append(keypoint_distances(env).cpu()[mask, 1:])
+    def on_reset(self, env: GraspTask, td: TensorDictBase) -> None:
+        self.parts.append(torch.full((env.num_envs, 5), float("nan")))
 
-        return at_success
+    def on_episode(self, env: GraspTask, ended: torch.Tensor, success: torch.Tensor) -> None:
+        if bool(success.any()):
+            self.parts[-1][success] = keypoint_distances(env).cpu()[success, 1:]
 
-    def _per_object(self) -> tuple[torch.Tensor, torch.Tensor]:
-        if not self.ids:
-            return torch.zeros(0, dtype=torch.long), torch.zeros(0, 5)
-        return torch.cat(self.ids), torch.cat(self.pads)
+    def distances(self) -> torch.Tensor:
+        """(N, 5) per episode, in the order of the runs (NaN where none succeeded)."""
+        return torch.cat(self.parts) if self.parts else torch.zeros(0, 5)
 
-    def held(self) -> list[int]:
+    def _successes(self, episodes: Episodes) -> tuple[torch.Tensor, torch.Tensor]:
+        """(target (S,), pads' distances (S, 5)) of the S successful episodes."""
+        return episodes.target[episodes.success], self.distances()[episodes.success]
+
+    def held(self, episodes: Episodes, num_objects: int) -> list[int]:
         """Per object: successes with >= 2 pads within 2 cm of the target's surface."""
-        from trainer.grasps.outcomes import HELD_DISTANCE, HELD_PADS
-
-        ids, pads = self._per_object()
+        ids, pads = self._successes(episodes)
         held = (pads < HELD_DISTANCE).sum(-1) >= HELD_PADS
-        return torch.bincount(ids[held], minlength=self.num_objects).tolist()
+        return torch.bincount(ids[held], minlength=num_objects).tolist()
 
-    def nearest(self) -> list[float | None]:
+    def nearest(self, episodes: Episodes, num_objects: int) -> list[float | None]:
         """Per object: the median distance (m) of the nearest pad at success (None: none)."""
-        ids, pads = self._per_object()
+        ids, pads = self._successes(episodes)
         nearest = pads.amin(-1)
         return [float(nearest[ids == k].median()) if bool((ids == k).any()) else None
-                for k in range(self.num_objects)]
-
-
-def _evaluate_lift(
-    cfg: EnvConfig, actor: torch.nn.Module, names: list[str], episodes_per_object: int,
-    seed: int, max_envs: int, deterministic: bool = True, pads: SuccessPads | None = None,
-    legacy: bool = False,
-) -> EvalResult:
-    """legacy: seed the envs as runs before the derived random streams did
-    (``trainer.randomness``)."""
-    episodes = [0] * len(names)
-    successes = [0] * len(names)
-    # Objects in batches of envs: each batch runs episodes_per_object episodes of each object.
-    per_batch = max(1, max_envs // episodes_per_object)
-    for start in range(0, len(names), per_batch):
-        chunk = names[start : start + per_batch]
-        env_cfg = dataclasses.replace(
-            cfg, objects=",".join(chunk), num_envs=episodes_per_object * len(chunk)
-        )
-        env = make_env(env_cfg, seed=RandomStreams(seed + start, legacy=legacy))
-        hook = pads.hook(env, start) if pads is not None else None
-        success, _, ids = run_episodes(env, actor, deterministic, at_success=hook)
-        for k in range(len(chunk)):
-            episodes[start + k] += int((ids == k).sum())
-            successes[start + k] += int(success[ids == k].sum())
-        env.close()
-    return EvalResult(names, episodes, successes, task=cfg.task,
-                      representation=cfg.representation)
-
-
-def run_bins(cfg: TrainConfig, num_envs: int, objects: Sequence[str] | None = None) -> GraspTask:
-    """The bin env of a bin run with ``num_envs`` envs: the bins the run trained on (its seed
-    draws the same layouts, whose settled states are cached), from ``objects`` instead of the
-    run's object set when given. Seed its episodes with ``env.set_seed``."""
-    env_cfg = dataclasses.replace(cfg.env, num_envs=num_envs)
-    if objects is not None:
-        env_cfg = dataclasses.replace(env_cfg, objects=",".join(objects))
-    return make_env(env_cfg, seed=run_streams(cfg))
-
-
-def successes_first(ids: Sequence[int], success: torch.Tensor, count: int) -> list[int]:
-    """The first ``count`` of the envs ``ids``, the successful ones (``success`` (E,) bool)
-    first, each group in the order of ``ids``: what ``trainer play --tries`` films."""
-    return sorted(ids, key=lambda i: not bool(success[i]))[:count]
-
-
-def play_bins(
-    cfg: TrainConfig, name: str, episodes: int
-) -> tuple[GraspTask, list[int], torch.Tensor]:
-    """For ``trainer play --object NAME`` on a bin run: the run's bins (``run_bins``, each
-    with ``episodes`` envs), the envs (up to ``episodes``) whose bin holds NAME, and the target
-    slots that make NAME their target (``run_episodes(target_slots=...)``; -1 elsewhere). A name
-    outside the run's object set, or in none of its bins, is a one-line error naming the fix."""
-    names = resolve_names(cfg.env.objects, cfg.env.data_dir)
-    if name not in names:
-        raise TrainerError(
-            f"--object {name}: not in the object set {cfg.env.objects!r} of this bin run: "
-            f"play one of its objects ({_listing(names)})"
-        )
-    count = min(cfg.env.bin.layouts, cfg.env.num_envs)
-    env = run_bins(cfg, count * episodes)
-    holds = env.assignment.cpu() == env.objects.names.index(name)  # (E, K)
-    ids = holds.any(1).nonzero()[:, 0][:episodes].tolist()
-    if not ids:
-        layouts, known = env.layouts.cpu(), env.objects.names
-        env.close()
-        held = sorted({known[k] for k in layouts.unique().tolist()})
-        raise TrainerError(
-            f"--object {name}: none of the run's {len(layouts)} bins holds it (they hold "
-            f"{_listing(held)}): play one of those"
-        )
-    slots = torch.full((env.num_envs,), -1, dtype=torch.long)
-    slots[ids] = holds[ids].long().argmax(1)
-    return env, ids, slots
+                for k in range(num_objects)]
 
 
 def _metres(value: float | None) -> str:
     return "" if value is None else f"{value:.4f}"
-
-
-def _listing(names: Sequence[str], most: int = 12) -> str:
-    more = f", ... ({len(names)} in all)" if len(names) > most else ""
-    return ", ".join(names[:most]) + more
 
 
 def balanced_targets(assignment: torch.Tensor, counts: torch.Tensor) -> torch.Tensor:
@@ -381,35 +231,35 @@ def balanced_targets(assignment: torch.Tensor, counts: torch.Tensor) -> torch.Te
 
 
 def _evaluate_bin(
-    cfg: TrainConfig, actor: torch.nn.Module, names: list[str], episodes_per_object: int,
-    seed: int, max_envs: int, max_rounds: int, deterministic: bool = True,
-    pads: SuccessPads | None = None,
-) -> EvalResult:
-    env = run_bins(cfg, min(cfg.env.num_envs, max_envs), names)
+    session: EvalSession, names: list[str], episodes_per_object: int, seed: int,
+    max_envs: int, max_rounds: int, deterministic: bool = True, hooks: dict | None = None,
+) -> tuple[EvalResult, Episodes]:
+    """The bin evaluation's rounds on the run's bins: the result, and every round's episodes
+    one after another (their ``target`` an index into ``names``)."""
+    cfg = session.cfg
+    env = session.bin_env(min(cfg.env.num_envs, max_envs), names)
     env.set_seed(seed)
     assignment = env.assignment.cpu()
     held = torch.zeros(len(names), dtype=torch.bool)
     held[env.layouts.cpu().unique()] = True
     episodes = torch.zeros(len(names), dtype=torch.long)
     successes = torch.zeros(len(names), dtype=torch.long)
-    rounds = 0
-    while rounds < max_rounds and bool((episodes[held] < episodes_per_object).any()):
+    parts: list[Episodes] = []
+    while len(parts) < max_rounds and bool((episodes[held] < episodes_per_object).any()):
         slots = balanced_targets(assignment, episodes)
-        success, _, ids = run_episodes(
-            env, actor, deterministic, target_slots=slots,
-            at_success=pads.hook(env) if pads is not None else None,
-        )
-        episodes += torch.bincount(ids, minlength=len(names))
-        successes += torch.bincount(ids[success], minlength=len(names))
-        rounds += 1
+        part = session.run(env, deterministic, target_slots=slots, **(hooks or {}))
+        episodes += torch.bincount(part.target, minlength=len(names))
+        successes += torch.bincount(part.target[part.success], minlength=len(names))
+        parts.append(part)
     env.close()
     short = [n for k, n in enumerate(names) if held[k] and episodes[k] < episodes_per_object]
     absent = [n for k, n in enumerate(names) if not held[k]]
-    return EvalResult(
+    result = EvalResult(
         names, episodes.tolist(), successes.tolist(), task="bin",
         representation=cfg.env.representation, bin_objects=cfg.env.bin.num_objects,
-        context=cfg.env.context, rounds=rounds, short=short, absent=absent,
+        context=cfg.env.context, rounds=len(parts), short=short, absent=absent,
     )
+    return result, Episodes.cat(parts)
 
 
 def write_eval(run: RunDir, result: EvalResult, folder: str = "eval") -> None:

@@ -203,6 +203,10 @@ class StateTape:
     def capture(self) -> None:
         self.states.append(self.snapshot(self.env))
 
+    def on_step(self, env: GraspTask, step: int, td: object) -> None:
+        """``capture`` as the step hook of an episode run (``trainer.session``)."""
+        self.capture()
+
     def end_at(self, steps: int, seconds: float = TAIL_SECONDS) -> None:
         """Make the tape ``steps`` control periods plus ``seconds`` long: the states past that
         are dropped (the filmed episodes ended ``steps`` in, the others ran on), and a tape too

@@ -13,8 +13,9 @@ lift, each trial's outcome told from its recorded trajectory.
 
 ``FAMILIES`` names them with their measured variants (``families.py``); ``run_scripted_grasp``
 / ``record_grasp`` run any of them (``runner.py``); ``outcomes.classify`` tells lifted / dropped
-/ no_grip / pushed; ``measure`` runs N trials per object and gives one row per object
-(``trainer grasp`` prints and writes them).
+/ no_grip / pushed; ``measure`` runs N trials per object and gives one row per object;
+``trials.run_trials`` runs them over variants, seeds and configurations (``trainer grasp`` and
+``bench/graspability.py`` print and write them).
 """
 
 from trainer.grasps.families import FAMILIES, TABLE1_OBJECTS, Family, Variant, family, measure

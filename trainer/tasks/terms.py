@@ -48,7 +48,7 @@ class StepQuantities(NamedTuple):
     h_bar: torch.Tensor
     """(E,) m, the lift target of each env's target object."""
     success: torch.Tensor
-    """(E,) bool, the target lifted by h_bar while held (``GraspTask._get_termination``)."""
+    """(E,) bool, the target lifted by h_bar while held (``trainer.tasks.outputs.termination``)."""
     tips: torch.Tensor
     """(E, 5, 3) m, the fingertip pads in the world."""
     tip_distance: torch.Tensor
