@@ -27,7 +27,7 @@ from pathlib import Path
 out, legacy = Path(sys.argv[1]), sys.argv[2] == "--legacy"
 # starts and warmup: cpu-table1.toml's setup, its [run] replaced (top-grasp starts; a warmup).
 table1 = Path("configs/cpu-table1.toml").read_text()
-table1 = table1[: table1.index("[run]")] + '[run]\ngrasp_starts = 0.5\ngrasp_start_family = "top"\n'
+table1 = table1[: table1.index("\n[run]\n") + 1] + '[run]\ngrasp_starts = 0.5\ngrasp_start_family = "top"\n'
 warmup = 'warmup_objects = "builtin_sphere"\nwarmup_steps = 512\ninit_agent_unseen = "silence"\n'
 for name in ("cpu", "cpu-bin", "floating", "starts", "warmup"):
     text = {"floating": "", "starts": table1, "warmup": table1 + warmup}.get(name)
