@@ -116,3 +116,24 @@ def test_run_and_success_override(dice_mug: Path) -> None:
                                                                        task="bin"))
     with pytest.raises(TrainerError, match="a bin run"):
         EvalSession(bin_cfg, session.agent).lift_episodes(["builtin_dice"], 2)
+
+
+def test_eval_splits_each_object_by_how_its_target_started(dice_mug: Path) -> None:
+    """trainer eval counts, per object, the episodes whose target started face up (its mesh's
+    z axis up after the first action, as ``scripts/eval_upright.py`` reads it) and
+    those that started upside down, with their successes: by_start.csv, summing to the
+    per-object totals."""
+    import csv
+
+    from tests.tiny_runs import script
+
+    result = evaluate(dice_mug, episodes_per_object=6, out="eval-by-start")
+    assert result.face_up is not None
+    rows = list(csv.DictReader((dice_mug / "eval-by-start" / "by_start.csv").open()))
+    for k, row in enumerate(rows):
+        up, down = int(row["face_up_episodes"]), int(row["upside_down_episodes"])
+        held = int(row["face_up_successes"]) + int(row["upside_down_successes"])
+        assert up + down == result.episodes[k] and held == result.successes[k]
+    split = script("scripts", "eval_upright").split_by_start_up(dice_mug, 6)
+    expected = [(up, up_held) for _, up, up_held, _, _ in split]
+    assert result.face_up == expected

@@ -612,6 +612,9 @@ def eval_cmd(
     width = max(len(n) for n in result.names)
     for k, name in enumerate(result.names):
         held = "" if result.held is None else f"  held by two pads {result.held[k]}"
+        if result.face_up is not None and result.upside_down(k)[0]:  # (by_start.csv)
+            (up, up_held), (down, down_held) = result.face_up[k], result.upside_down(k)
+            held += f"  (started face up {up_held}/{up}, upside down {down_held}/{down})"
         click.echo(f"{name:<{width}}  {result.successes[k]}/{result.episodes[k]}{held}")
     click.echo(f"{'overall':<{width}}  {result.overall:.3f}")
     click.echo(f"success: the target {result.success_text}")

@@ -15,11 +15,13 @@ import contextlib
 import csv
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 import torch
 from tensordict import TensorDictBase
 
 from geomgrasp.files import atomic_path
+from geomgrasp.rotations import quat_to_matrix
 from trainer.errors import TrainerError
 from trainer.grasps.outcomes import HELD_DISTANCE, HELD_PADS
 from trainer.grasps.runner import keypoint_distances
@@ -63,6 +65,17 @@ class EvalResult:
     nearest_pad: list[float | None] | None = None
     """Per object, the median distance (m) of the nearest pad at the success steps (None
     where no success)."""
+    face_up: list[tuple[int, int]] | None = None
+    """Per object, (episodes, successes) of the episodes whose target started face up: its
+    mesh's up axis pointing up after the first action (lift; None: not measured). A plate
+    that settles upside down is a dome no grasp of this hand has lifted
+    (results/cpu-plate-source-2026-11-28/): its held rate is capped by its face-up share."""
+
+    def upside_down(self, k: int) -> tuple[int, int]:
+        """(episodes, successes) of object ``k``'s episodes that started upside down."""
+        assert self.face_up is not None
+        up, up_held = self.face_up[k]
+        return self.episodes[k] - up, self.successes[k] - up_held
 
     @property
     def overall(self) -> float:
@@ -137,7 +150,8 @@ def evaluate(
     cfg = session.cfg
     names = session.names(objects)
     collector = SuccessPads() if pads else None
-    hooks = collector.hooks() if collector is not None else {}
+    start_up = StartsFaceUp()
+    hooks = chain_hooks(start_up.hooks(), collector.hooks() if collector is not None else {})
     with session.sampling(seed) if sample else contextlib.nullcontext():
         if cfg.env.task == "bin":
             result, episodes = _evaluate_bin(
@@ -149,7 +163,8 @@ def evaluate(
                                              deterministic=not sample, max_envs=max_envs,
                                              **hooks)
             result = EvalResult(names, *_counts(episodes, len(names)), task=cfg.env.task,
-                                representation=cfg.env.representation)
+                                representation=cfg.env.representation,
+                                face_up=start_up.counts(episodes, len(names)))
     result = dataclasses.replace(
         result, success_text=cfg.env.reward.success_text(), iteration=iteration, sampled=sample
     )
@@ -165,6 +180,44 @@ def _counts(episodes: Episodes, num_objects: int) -> tuple[list[int], list[int]]
     target = episodes.target
     return (torch.bincount(target, minlength=num_objects).tolist(),
             torch.bincount(target[episodes.success], minlength=num_objects).tolist())
+
+
+def chain_hooks(*hook_sets: dict[str, Any]) -> dict[str, Any]:
+    """The hooks of several collectors (``{"on_reset": f, ...}`` each) as one set: each hook
+    calls theirs in order."""
+    merged: dict[str, Any] = {}
+    for hooks in hook_sets:
+        for name, hook in hooks.items():
+            before = merged.get(name)
+            merged[name] = hook if before is None else (
+                lambda *args, _before=before, _hook=hook: (_before(*args), _hook(*args)))
+    return merged
+
+
+class StartsFaceUp:
+    """Per episode, whether the target started face up (the z axis of its mesh pointing up
+    after the first action, before the hand can have turned it; as scripts/eval_upright.py
+    read it): the ``on_step`` hook of ``run_episodes`` / ``EvalSession.lift_episodes``
+    (``hooks()``), counted per object over the episodes they returned (``counts``)."""
+
+    def __init__(self) -> None:
+        self.parts: list[torch.Tensor] = []
+        """Per run, (E,) bool: env i's target started face up."""
+
+    def hooks(self) -> dict[str, Any]:
+        return {"on_step": self.on_step}
+
+    def on_step(self, env: GraspTask, step: int, td: TensorDictBase) -> None:
+        if step == 0:
+            self.parts.append(quat_to_matrix(env.target_pose()[1])[:, 2, 2].cpu() >= 0)
+
+    def counts(self, episodes: Episodes, num_objects: int) -> list[tuple[int, int]]:
+        """Per object: (episodes that started face up, their successes)."""
+        up = torch.cat(self.parts)
+        target = episodes.target[up]
+        return list(zip(torch.bincount(target, minlength=num_objects).tolist(),
+                        torch.bincount(target[episodes.success[up]],
+                                       minlength=num_objects).tolist(), strict=True))
 
 
 class SuccessPads:
@@ -265,9 +318,17 @@ def _evaluate_bin(
 def write_eval(run: RunDir, result: EvalResult, folder: str = "eval") -> None:
     """``eval/per_object.csv`` (object, episodes, successes, success_rate, then the task as the
     policy saw it: task, bin_objects, context, representation) and ``eval/table.md`` (in
-    ``folder`` instead of ``eval/`` when given)."""
+    ``folder`` instead of ``eval/`` when given); with the start poses measured (lift),
+    ``by_start.csv`` (object, face-up episodes and successes, upside-down ones)."""
     out = run.path / folder
     out.mkdir(parents=True, exist_ok=True)
+    if result.face_up is not None:
+        with atomic_path(out / "by_start.csv") as tmp, open(tmp, "w", newline="") as handle:
+            writer = csv.writer(handle)
+            writer.writerow(["object", "face_up_episodes", "face_up_successes",
+                             "upside_down_episodes", "upside_down_successes"])
+            for k, name in enumerate(result.names):
+                writer.writerow([name, *result.face_up[k], *result.upside_down(k)])
     task = [result.task, result.bin_objects or "", result.context, result.representation]
     pads = result.held is not None and result.nearest_pad is not None
     with atomic_path(out / "per_object.csv") as tmp, open(tmp, "w", newline="") as handle:
