@@ -252,6 +252,51 @@ def field_docs(cls: type) -> dict[str, str]:
     return docs
 
 
+def parse_value(text: str) -> Any:
+    """A command-line value as TOML reads it (``0.75``, ``true``, ``[1, 2]``, ``"a b"``); a bare
+    word that is not TOML (``hulls``) is a string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def parse_assignment(
+    text: str, option: str, example: str, error: type[Exception] = UserError
+) -> tuple[str, str]:
+    """``KEY=VALUE`` -> (key, value text); anything else is a one-line ``error`` naming
+    ``option`` with ``example`` (a valid assignment) as the fix. The one parser of every
+    command's ``--set section.key=value``."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip() or not value.strip():
+        raise error(f"{option} {text!r}: write KEY=VALUE with KEY as section.key, e.g. {example}")
+    return key.strip(), value.strip()
+
+
+def nested_sets(sets: Mapping[str, Any]) -> dict[str, Any]:
+    """Dotted keys (``section.key``, deeper sections too) -> nested tables, as a TOML file
+    would hold them."""
+    out: dict[str, Any] = {}
+    for key, value in sets.items():
+        *sections, name = key.split(".")
+        table = out
+        for section in sections:
+            table = table.setdefault(section, {})
+        table[name] = value
+    return out
+
+
+def merge_tables(base: Mapping[str, Any], extra: Mapping[str, Any]) -> dict[str, Any]:
+    """``base`` with ``extra``'s values in it, tables merged key by key."""
+    out = dict(base)
+    for key, value in extra.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = merge_tables(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
 def build_dataclass(
     cls: type,
     values: Mapping[str, Any],

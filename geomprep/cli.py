@@ -35,13 +35,16 @@ STAGE_HELP = {
 
 
 class Context:
-    def __init__(self, config_path: Path | None, data_dir: Path | None) -> None:
+    def __init__(
+        self, config_path: Path | None, data_dir: Path | None, sets: tuple[str, ...] = ()
+    ) -> None:
         self.config_path = config_path
         self.data_dir = data_dir
+        self.sets = sets
 
     @property
     def cfg(self) -> Config:
-        return load_config(self.config_path, self.data_dir)
+        return load_config(self.config_path, self.data_dir, self.sets)
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -57,9 +60,17 @@ class Context:
     type=click.Path(path_type=Path, dir_okay=False),
     help="TOML file overriding stage parameters. Default: ./geomprep.toml if present.",
 )
+@click.option(
+    "--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE",
+    help="Override one stage parameter after the config file (repeatable), e.g. "
+         "--set sdf.resolution=64.",
+)
 @click.option("-v", "--verbose", is_flag=True, help="Log every stage as it finishes.")
 @click.pass_context
-def cli(ctx: click.Context, data_dir: Path | None, config_path: Path | None, verbose: bool) -> None:
+def cli(
+    ctx: click.Context, data_dir: Path | None, config_path: Path | None,
+    sets: tuple[str, ...], verbose: bool,
+) -> None:
     """Turn object meshes into simulation-ready, geometry-annotated assets.
 
     \b
@@ -76,7 +87,7 @@ def cli(ctx: click.Context, data_dir: Path | None, config_path: Path | None, ver
         level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(message)s"
     )
     logging.getLogger("trimesh").setLevel(logging.ERROR)
-    ctx.obj = Context(config_path, data_dir)
+    ctx.obj = Context(config_path, data_dir, sets)
 
 
 @cli.command()

@@ -13,7 +13,7 @@ that read its output) and nothing else.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
@@ -202,14 +202,28 @@ class Config(DataDirs):
     build: BuildParams = field(default_factory=BuildParams)
 
 
-def load_config(path: Path | None = None, data_dir: Path | None = None) -> Config:
-    """Defaults, overridden by the TOML file at ``path`` (or ./geomprep.toml if it exists)."""
+def load_config(
+    path: Path | None = None, data_dir: Path | None = None, sets: Sequence[str] = (),
+) -> Config:
+    """Defaults, overridden by the TOML file at ``path`` (or ./geomprep.toml if it exists), then
+    by ``sets`` (``section.key=value`` as TOML reads the value, e.g. ``sdf.resolution=64``: the
+    command line's ``--set``)."""
     values: dict[str, Any] = {}
     if path is None and Path(DEFAULT_CONFIG_NAME).is_file():
         path = Path(DEFAULT_CONFIG_NAME)
     if path is not None:
         values = read_toml(path)
-    cfg = build_dataclass(Config, values, str(path)) if values else Config()
+    given: dict[str, Any] = {}
+    names: dict[str, str] = {}
+    for text in sets:
+        key, value = config_schema.parse_assignment(
+            text, "--set", "sdf.resolution=64 (docs/building.md lists the stages' keys)",
+            GeomprepError,
+        )
+        given[key], names[key] = config_schema.parse_value(value), f"--set {key}={value}"
+    values = config_schema.merge_tables(values, config_schema.nested_sets(given))
+    source = str(path) if path is not None else None
+    cfg = build_dataclass(Config, values, source, names=names) if values else Config()
     return cfg if data_dir is None else dataclasses.replace(cfg, data_dir=Path(data_dir))
 
 

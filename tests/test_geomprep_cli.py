@@ -291,3 +291,20 @@ def test_cli_import_leaves_the_heavy_libraries_alone():
 def test_stage_commands_are_the_pipeline_stages():
     """cli lists the stages itself (importing pipeline would import them all)."""
     assert tuple(cli.STAGE_HELP) == pipeline.STAGES
+
+
+def test_set_overrides_a_stage_parameter_after_the_config_file(tmp_path: Path) -> None:
+    """``geomprep --set section.key=value`` (as every trainer command's ``--set``): applied
+    after the TOML file, values read as TOML; a bad one is one line naming the assignment."""
+    from geomprep.config import load_config
+
+    toml = tmp_path / "geomprep.toml"
+    toml.write_text("[sdf]\nresolution = 100\nextent_m = 0.8\n")
+    cfg = load_config(toml, tmp_path, ("sdf.resolution=64",))
+    assert cfg.sdf.resolution == 64 and cfg.sdf.extent_m == 0.8  # the file's other key stays
+    assert load_config(None, tmp_path, ()).sdf.resolution == 200
+    data = str(tmp_path / "data")
+    _assert_one_error_line(_geomprep("--data-dir", data, "--set", "sdf.resolution=abc", "list"),
+                           "--set sdf.resolution=abc", "integer")
+    _assert_one_error_line(_geomprep("--data-dir", data, "--set", "sdfresolution", "list"),
+                           "write KEY=VALUE", "sdf.resolution=64")

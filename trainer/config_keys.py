@@ -13,12 +13,12 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import re
-import tomllib
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from geomgrasp import config_schema
 from geomgrasp.config_schema import (
     check_value,
     describe_type,
@@ -27,6 +27,7 @@ from geomgrasp.config_schema import (
     field_types,
     limits_text,
     paper_value,
+    parse_value,
     toml_value,
 )
 from trainer.config import EnvConfig, PPOConfig, RunConfig
@@ -114,24 +115,12 @@ def all_keys(training: bool = True) -> list[Key]:
 
 
 # --- --set section.key=value ---------------------------------------------------------------
-def parse_value(text: str) -> Any:
-    """A command-line value as TOML reads it (``0.75``, ``true``, ``[1, 2]``, ``"a b"``); a bare
-    word that is not TOML (``hulls``) is a string."""
-    try:
-        return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        return text
-
-
 def parse_assignment(text: str, option: str) -> tuple[str, str]:
-    """``KEY=VALUE`` -> (key, value text); anything else is a one-line error naming ``option``."""
-    key, sep, value = text.partition("=")
-    if not sep or not key.strip() or not value.strip():
-        raise TrainerError(
-            f"{option} {text!r}: write KEY=VALUE with KEY as section.key, e.g. "
-            "robot.hand_geometry=hulls (trainer config lists the keys)"
-        )
-    return key.strip(), value.strip()
+    """``KEY=VALUE`` -> (key, value text); anything else is a one-line error naming ``option``
+    (``geomgrasp.config_schema.parse_assignment``)."""
+    return config_schema.parse_assignment(
+        text, option, "robot.hand_geometry=hulls (trainer config lists the keys)", TrainerError
+    )
 
 
 def check_set(key: str, value: Any, given: str, training: bool = True) -> None:
