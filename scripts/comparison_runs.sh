@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# The comparison's runs (issue 61; results/cpu-comparison-2026-11-29/README.md) in chunks that
+# outlive a work session: each ARM (REPR-REWARD-sSEED, e.g. sq-sdf-s0, bbox-none-s1) continues
+# from its committed folder (results/cpu-comparison-2026-11-29/runs/cmp-ARM) or starts, trains
+# until its time budget in all reaches MINUTES of training (or its 4.6 M env steps), then copies
+# what the next chunk needs back into results/ (config.json, metrics.csv, grasp_starts.pt,
+# checkpoints/last.pt). Arms run one after the other; start two of these for the two cores:
+#
+#   nohup scripts/comparison_runs.sh 240 sq-sdf-s0 sdf-sdf-s1 > logs/cmp-a.log 2>&1 &
+#   nohup scripts/comparison_runs.sh 240 com-sdf-s0 bbox-com-s0 > logs/cmp-b.log 2>&1 &
+#
+# A run stopped by SIGTERM (kill PID of its `trainer run`) writes a checkpoint; rerun this
+# script with the arm to copy it back and continue.
+set -uo pipefail
+if [ $# -lt 2 ]; then echo "usage: scripts/comparison_runs.sh MINUTES ARM..." >&2; exit 2; fi
+ROOT=$(cd "$(dirname "$0")/.." && pwd)
+cd "$ROOT"
+MINUTES=$1; shift
+HERE=results/cpu-comparison-2026-11-29
+for ARM in "$@"; do
+  IFS=- read -r REPR REWARD SEED <<< "$ARM"
+  RUN=runs/cmp-$ARM
+  SAVED=$HERE/runs/cmp-$ARM
+  if [ ! -d "$RUN" ] && [ -f "$SAVED/checkpoints/last.pt" ]; then
+    mkdir -p runs && cp -r "$SAVED" "$RUN"
+  fi
+  echo "== $ARM: $(date -u +%FT%TZ)"
+  if [ -f "$RUN/checkpoints/last.pt" ]; then
+    trainer run --resume "$RUN" --minutes "$MINUTES"
+  else
+    trainer run --config "$HERE/comparison.toml" --repr "$REPR" --reward "$REWARD" \
+      --seed "${SEED#s}" --data-dir data --run-dir "$RUN" --minutes "$MINUTES"
+  fi
+  if [ -f "$RUN/checkpoints/last.pt" ]; then
+    mkdir -p "$SAVED/checkpoints"
+    cp "$RUN/config.json" "$RUN/metrics.csv" "$RUN/grasp_starts.pt" "$SAVED/" 2>/dev/null
+    cp "$RUN/checkpoints/last.pt" "$SAVED/checkpoints/last.pt"
+    echo "== $ARM: saved to $SAVED ($(tail -1 "$RUN/metrics.csv" | cut -d, -f2) env steps)"
+  fi
+done
