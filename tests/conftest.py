@@ -10,7 +10,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import fcntl  # noqa: E402
 import hashlib  # noqa: E402
 import shutil  # noqa: E402
-from collections.abc import Sequence  # noqa: E402
+from collections.abc import Iterator, Sequence  # noqa: E402
 from importlib import metadata  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -49,6 +49,29 @@ def ycb_mesh(name: str) -> trimesh.Trimesh:
     source = mesh.load_source(require_ycb() / name / "google_16k" / "textured.obj")
     norm = mesh.normalize_mesh(source, Config().mesh, None, 500.0, label=name)
     return trimesh.Trimesh(norm.vertices, norm.faces, process=False)
+
+
+TEST_SHADOW_SIZE = 256
+"""Shadow map size (pixels a side) of the offscreen renders in the tests."""
+
+
+@pytest.fixture(scope="session", autouse=True)
+def small_shadow_maps() -> Iterator[None]:
+    """Offscreen renderers get a 256² shadow map instead of the scene's 4096²: without a GPU
+    (EGL's software rasterizer) drawing the 4096² map took ~95 % of a frame (0.1 s a tile even
+    at 160x120). Shadows are still drawn, so the render path is the videos' own, and no test
+    looks at a shadow; the model is only given a smaller ``vis.quality.shadowsize``."""
+    import mujoco
+
+    original = mujoco.Renderer.__init__
+
+    def init(self, model: mujoco.MjModel, *args: object, **kwargs: object) -> None:
+        model.vis.quality.shadowsize = min(model.vis.quality.shadowsize, TEST_SHADOW_SIZE)
+        original(self, model, *args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(mujoco.Renderer, "__init__", init)
+        yield
 
 
 # ---------------------------------------------------------------------------------------------
