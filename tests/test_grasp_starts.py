@@ -12,8 +12,9 @@ from trainer.config import RewardConfig, load_env_config
 from trainer.errors import TrainerError
 from trainer.randomness import RandomStreams
 from trainer.tasks import make_env
+from trainer.tasks.starts import GraspStarts
 from trainer.training.curriculum import LiftCurriculum
-from trainer.training.grasp_starts import GraspStarts, record_grasp_starts
+from trainer.training.grasp_starts import record_grasp_starts
 from trainer.training.outcomes import EpisodeStats
 
 
