@@ -6,6 +6,15 @@ import os
 
 # MuJoCo chooses its OpenGL backend at first import; the rendering tests need EGL (no display).
 os.environ.setdefault("MUJOCO_GL", "egl")
+# Each test worker (README: 2 on 2 cores) gets its share of the cores for its OpenMP and BLAS
+# thread pools, as each of geomprep's build processes gets one thread (pipeline.THREAD_VARS):
+# torch's pool spinning on both cores for its tiny tensors took the other worker's turn (the
+# same tests used 30 % more CPU time). Read when torch and numpy load, so set before them; a
+# value given in the environment stays, and a run without workers keeps the libraries' own.
+if "PYTEST_XDIST_WORKER_COUNT" in os.environ:
+    _share = max(1, (os.cpu_count() or 1) // int(os.environ["PYTEST_XDIST_WORKER_COUNT"]))
+    for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(_var, str(_share))
 
 import fcntl  # noqa: E402
 import hashlib  # noqa: E402
