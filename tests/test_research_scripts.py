@@ -9,6 +9,7 @@ the targets start) and scripts/grasp_offset.py (where a policy holds each object
 
 from __future__ import annotations
 
+import shutil
 import sys
 from pathlib import Path
 
@@ -47,7 +48,13 @@ def test_tilt_between_orientations() -> None:
 
 
 
-def tiny_trained_run(builtin_data: Config, tmp_path: Path):  # noqa: ANN201
+def _copy(run: RunDir, tmp_path: Path) -> RunDir:
+    """A test's own copy of a run trained once for the module (a script may write into it)."""
+    return RunDir(shutil.copytree(run.path, tmp_path / "run"))
+
+
+@pytest.fixture(scope="module")
+def box_run(builtin_data: Config, tmp_path_factory: pytest.TempPathFactory) -> RunDir:
     """One PPO iteration on the built-in box (4 envs, 12-action episodes): a run directory
     with a checkpoint, for the scripts that read one."""
     from trainer.config import load_train_config
@@ -60,16 +67,21 @@ def tiny_trained_run(builtin_data: Config, tmp_path: Path):  # noqa: ANN201
              "hidden": (16, 16)},
         run={"total_steps": 32, "checkpoint_every": 1, "seed": 0},
     )
-    return train(cfg, tmp_path / "run", progress=False)
+    return train(cfg, tmp_path_factory.mktemp("box") / "run", progress=False)
 
 
-def test_policy_probe_follows_an_episode(builtin_data: Config, tmp_path: Path) -> None:
+def tiny_trained_run(box_run: RunDir, tmp_path: Path) -> RunDir:
+    """``box_run``, copied for the test."""
+    return _copy(box_run, tmp_path)
+
+
+def test_policy_probe_follows_an_episode(box_run: RunDir, tmp_path: Path) -> None:
     """scripts/policy_probe.py on a tiny trained run: one row per action of a whole episode,
     the target starting on the table (no rise at the first action), the hand's 5 servo targets
     in each row, and the printed table's rows every ``--every`` actions plus the last."""
     import policy_probe
 
-    run = tiny_trained_run(builtin_data, tmp_path)
+    run = tiny_trained_run(box_run, tmp_path)
     rows, success, earned = policy_probe.probe(run.path, envs=3, h_bar=0.05, gammas=(0.9, 1.0))
     assert len(rows) == 12 and 0.0 <= success <= 1.0
     # the discounted return weighs later rewards less; with gamma 1 it is the plain sum, the
@@ -213,9 +225,7 @@ def test_start_noise_replays_the_same_starts_per_setting(
         start_noise.survive(run.path, [quiet])
 
 
-def test_episode_outcomes_puts_each_episode_in_one_class(
-    builtin_data: Config, tmp_path: Path
-) -> None:
+def test_episode_outcomes_puts_each_episode_in_one_class(box_run: RunDir, tmp_path: Path) -> None:
     """scripts/episode_outcomes.py: the classes from the centre rise (a success whatever its
     rise; never up 1 cm; up then 3 cm below the peak at the end; up and staying), and on a tiny
     trained run one line per env whose counts add up to the envs."""
@@ -228,7 +238,7 @@ def test_episode_outcomes_puts_each_episode_in_one_class(
     assert eo.classify(up_and_down, False, 0.01, 0.03) == "dropped"
     assert eo.classify(torch.tensor([0.0, 0.05, 0.04]), False, 0.01, 0.03) == "stalled"
 
-    run = tiny_trained_run(builtin_data, tmp_path)
+    run = tiny_trained_run(box_run, tmp_path)
     episodes = eo.outcomes(run.path, envs=3, h_bar=0.05)
     assert len(episodes) == 3
     for ep in episodes:
@@ -265,7 +275,8 @@ def test_metrics_blocks_weights_rates_by_episodes(tmp_path: Path) -> None:
         metrics_blocks.main([str(tmp_path / "missing")])
 
 
-def _tiny_dice_mug_run(builtin_data: Config, tmp_path: Path) -> RunDir:
+@pytest.fixture(scope="module")
+def dice_mug_run(builtin_data: Config, tmp_path_factory: pytest.TempPathFactory) -> RunDir:
     """A one-iteration bbox run on the built-in dice and mug (an untrained policy)."""
     from trainer.config import load_train_config
     from trainer.ppo import train
@@ -277,11 +288,11 @@ def _tiny_dice_mug_run(builtin_data: Config, tmp_path: Path) -> RunDir:
              "hidden": (16, 16)},
         run={"total_steps": 32, "seed": 0},
     )
-    return train(cfg, tmp_path / "run", progress=False)
+    return train(cfg, tmp_path_factory.mktemp("dice-mug") / "run", progress=False)
 
 
 def test_eval_upright_splits_exactly_the_episodes_of_trainer_eval(
-    builtin_data: Config, tmp_path: Path
+    dice_mug_run: RunDir, tmp_path: Path
 ) -> None:
     """scripts/eval_upright.py replays trainer eval's episodes: per object its upright and
     upside-down episodes add up to the eval's episodes, their held ones to its successes."""
@@ -289,7 +300,7 @@ def test_eval_upright_splits_exactly_the_episodes_of_trainer_eval(
 
     from trainer.evaluation import evaluate
 
-    run = _tiny_dice_mug_run(builtin_data, tmp_path)
+    run = _copy(dice_mug_run, tmp_path)
     result = evaluate(run.path, episodes_per_object=12)
     rows = eval_upright.split_by_start_up(run.path, episodes_per_object=12)
     assert [row[0] for row in rows] == result.names
@@ -300,7 +311,7 @@ def test_eval_upright_splits_exactly_the_episodes_of_trainer_eval(
 
 
 def test_grasp_offset_measures_the_pads_in_the_object_box_frame(
-    builtin_data: Config, tmp_path: Path
+    dice_mug_run: RunDir, tmp_path: Path
 ) -> None:
     """scripts/grasp_offset.py: the pads' centroid in the box frame (a turned, shifted box), and
     per object the episodes trainer eval runs (an untrained policy holds none: no offset)."""
@@ -324,7 +335,7 @@ def test_grasp_offset_measures_the_pads_in_the_object_box_frame(
     assert distance.item() == pytest.approx(0.08, abs=1e-6)
     assert fraction.item() == pytest.approx(0.08 / 0.1, abs=1e-5)  # along the box's long axis
 
-    run = _tiny_dice_mug_run(builtin_data, tmp_path)
+    run = _copy(dice_mug_run, tmp_path)
     result = evaluate(run.path, episodes_per_object=6)
     rows = grasp_offset.grasp_offsets(run.path, episodes_per_object=6)
     assert [row[0] for row in rows] == result.names
