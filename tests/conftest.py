@@ -83,6 +83,44 @@ def small_shadow_maps() -> Iterator[None]:
         yield
 
 
+SDF_GRIDS_KEPT = 12
+"""Dense SDF grids a test worker keeps in memory (32 MB each at 200^3), least recently used
+dropped first."""
+
+
+@pytest.fixture(scope="session", autouse=True)
+def sdf_grids_read_once() -> Iterator[None]:
+    """Every env reads its objects' SDF grids (``SDFLookup.from_hdf5``), and decompressing
+    a 200^3 grid took half of an env's build: about half of the time of the tests that build
+    envs went into reading the same few files again. Here a worker reads each file's grid once,
+    keyed by the file's name, size and modification time (the copies of the built data
+    directories keep those), and hands every reader its own copy; the lookup is still built
+    from it by ``SDFLookup`` itself, and a changed or rebuilt file is read afresh."""
+    from collections import OrderedDict
+
+    import numpy as np
+
+    from geomprep import sdf_lookup
+
+    read = sdf_lookup.read_sdf_grid
+    kept: OrderedDict[tuple[str, int, int], np.ndarray] = OrderedDict()
+
+    def read_once(path: str | Path) -> np.ndarray:
+        stat = Path(path).stat()
+        key = (Path(path).name, stat.st_size, stat.st_mtime_ns)
+        if key in kept:
+            kept.move_to_end(key)
+        else:
+            kept[key] = read(path)
+            if len(kept) > SDF_GRIDS_KEPT:
+                kept.popitem(last=False)
+        return kept[key].copy()
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(sdf_lookup, "read_sdf_grid", read_once)
+        yield
+
+
 # ---------------------------------------------------------------------------------------------
 # Built data directories, cached across test sessions by content
 
