@@ -6,11 +6,20 @@ import os
 
 # MuJoCo chooses its OpenGL backend at first import; the rendering tests need EGL (no display).
 os.environ.setdefault("MUJOCO_GL", "egl")
+# Each test worker (README: 2 on 2 cores) gets its share of the cores for its OpenMP and BLAS
+# thread pools, as each of geomprep's build processes gets one thread (pipeline.THREAD_VARS):
+# torch's pool spinning on both cores for its tiny tensors took the other worker's turn (the
+# same tests used 30 % more CPU time). Read when torch and numpy load, so set before them; a
+# value given in the environment stays, and a run without workers keeps the libraries' own.
+if "PYTEST_XDIST_WORKER_COUNT" in os.environ:
+    _share = max(1, (os.cpu_count() or 1) // int(os.environ["PYTEST_XDIST_WORKER_COUNT"]))
+    for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(_var, str(_share))
 
 import fcntl  # noqa: E402
 import hashlib  # noqa: E402
 import shutil  # noqa: E402
-from collections.abc import Sequence  # noqa: E402
+from collections.abc import Iterator, Sequence  # noqa: E402
 from importlib import metadata  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -49,6 +58,67 @@ def ycb_mesh(name: str) -> trimesh.Trimesh:
     source = mesh.load_source(require_ycb() / name / "google_16k" / "textured.obj")
     norm = mesh.normalize_mesh(source, Config().mesh, None, 500.0, label=name)
     return trimesh.Trimesh(norm.vertices, norm.faces, process=False)
+
+
+TEST_SHADOW_SIZE = 256
+"""Shadow map size (pixels a side) of the offscreen renders in the tests."""
+
+
+@pytest.fixture(scope="session", autouse=True)
+def small_shadow_maps() -> Iterator[None]:
+    """Offscreen renderers get a 256² shadow map instead of the scene's 4096²: without a GPU
+    (EGL's software rasterizer) drawing the 4096² map took ~95 % of a frame (0.1 s a tile even
+    at 160x120). Shadows are still drawn, so the render path is the videos' own, and no test
+    looks at a shadow; the model is only given a smaller ``vis.quality.shadowsize``."""
+    import mujoco
+
+    original = mujoco.Renderer.__init__
+
+    def init(self, model: mujoco.MjModel, *args: object, **kwargs: object) -> None:
+        model.vis.quality.shadowsize = min(model.vis.quality.shadowsize, TEST_SHADOW_SIZE)
+        original(self, model, *args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(mujoco.Renderer, "__init__", init)
+        yield
+
+
+SDF_GRIDS_KEPT = 12
+"""Dense SDF grids a test worker keeps in memory (32 MB each at 200^3), least recently used
+dropped first."""
+
+
+@pytest.fixture(scope="session", autouse=True)
+def sdf_grids_read_once() -> Iterator[None]:
+    """Every env reads its objects' SDF grids (``SDFLookup.from_hdf5``), and decompressing
+    a 200^3 grid took half of an env's build: about half of the time of the tests that build
+    envs went into reading the same few files again. Here a worker reads each file's grid once,
+    keyed by the file's name, size and modification time (the copies of the built data
+    directories keep those), and hands every reader its own copy; the lookup is still built
+    from it by ``SDFLookup`` itself, and a changed or rebuilt file is read afresh."""
+    from collections import OrderedDict
+
+    import numpy as np
+
+    from geomprep import sdf_lookup
+
+    read = sdf_lookup.read_sdf_grid
+    kept: OrderedDict[tuple[str, int, int], np.ndarray] = OrderedDict()
+
+    def read_once(path: str | Path) -> np.ndarray:
+        stat = Path(path).stat()
+        key = (Path(path).name, stat.st_size, stat.st_mtime_ns)
+        if key in kept:
+            kept.move_to_end(key)
+        else:
+            kept[key] = read(path)
+            if len(kept) > SDF_GRIDS_KEPT:
+                kept.popitem(last=False)
+        return kept[key].copy()
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(sdf_lookup, "read_sdf_grid", read_once)
+        yield
 
 
 # ---------------------------------------------------------------------------------------------

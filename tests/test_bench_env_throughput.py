@@ -3,18 +3,45 @@ more configuration per --variant, timed in the same rounds, with each one's cont
 
 from __future__ import annotations
 
+import importlib.util
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from geomprep.config import Config
 
 ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "bench" / "env_throughput.py"
 
 
 def bench(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, str(ROOT / "bench" / "env_throughput.py"), *args],
+    return subprocess.run([sys.executable, str(SCRIPT), *args],
                           capture_output=True, text=True, cwd=ROOT, timeout=600)
+
+
+def bench_here(
+    args: list[str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> tuple[int, str]:
+    """The script's ``main`` in this process (no interpreter to start, no torch to import):
+    (exit status, stderr) as its command line would end, a ``SystemExit`` message printed as
+    Python prints it; any other exception propagates (a traceback on the command line)."""
+    import torch
+
+    spec = importlib.util.spec_from_file_location("env_throughput", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    monkeypatch.setattr(sys, "argv", [str(SCRIPT), *args])
+    threads = torch.get_num_threads()
+    try:
+        module.main()
+        code, message = 0, ""
+    except SystemExit as exc:
+        code, message = (1, f"{exc.code}\n") if isinstance(exc.code, str) else (exc.code, "")
+    finally:
+        torch.set_num_threads(threads)  # main sets 1 for its timings
+    return code, capsys.readouterr().err + message
 
 
 def test_policy_driven_rows_per_variant(builtin_data: Config, tmp_path: Path) -> None:
@@ -43,15 +70,19 @@ def test_policy_driven_rows_per_variant(builtin_data: Config, tmp_path: Path) ->
         assert contacts >= 1.0  # the box rests on the table in every env, at least
 
 
-def test_unknown_run_or_key_is_one_line(tmp_path: Path) -> None:
-    done = bench("--policy", str(tmp_path / "nowhere"))
-    assert done.returncode != 0 and "Traceback" not in done.stderr
-    assert "--policy" in done.stderr.strip().splitlines()[-1]
+def test_unknown_run_or_key_is_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, err = bench_here(["--policy", str(tmp_path / "nowhere")], monkeypatch, capsys)
+    assert code != 0 and "Traceback" not in err
+    assert "--policy" in err.strip().splitlines()[-1]
 
 
-def test_a_bad_set_or_variant_is_one_line_before_anything_is_built() -> None:
+def test_a_bad_set_or_variant_is_one_line_before_anything_is_built(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     for option, text in (("--set", "physics.substep=0"), ("--variant", "physics.sleep=maybe")):
-        done = bench(option, text)
-        err = done.stderr.strip()
-        assert done.returncode != 0 and "\n" not in err, err
+        code, err = bench_here([option, text], monkeypatch, capsys)
+        err = err.strip()
+        assert code != 0 and "\n" not in err, err
         assert err.startswith(f"env_throughput: {option} {text}: "), err

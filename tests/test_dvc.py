@@ -28,13 +28,20 @@ def test_dvc_repro_builds_builtin_objects(tmp_path):
     project.mkdir()
     shutil.copy(ROOT / "dvc.yaml", project / "dvc.yaml")
     (project / "params.yaml").write_text("objects:\n  - builtin_dice\n  - builtin_knife\n")
+    # The stages are geomprep's commands, so they read the project's geomprep.toml: a coarse
+    # SDF grid and a short superquadric fit keep the build quick (the stages, not the grid, are
+    # under test here; tests/test_sdf.py and tests/test_superquadric.py test those).
+    (project / "geomprep.toml").write_text(
+        "[sdf]\nresolution = 40\n[sq]\nn_points = 300\nmax_iters = 8\nmax_switches = 1\n"
+        "surface_samples = 50\n"
+    )
     assert _dvc("init", "--no-scm", cwd=project).returncode == 0
 
     first = _dvc("repro", cwd=project)
     assert first.returncode == 0, first.stdout + first.stderr
     for name in ("builtin_dice", "builtin_knife"):
         with h5py.File(project / "data" / "processed" / f"{name}.h5", "r") as f:
-            assert f["sdf/grid"].shape == (200, 200, 200)
+            assert f["sdf/grid"].shape == (40, 40, 40)  # geomprep.toml's
             assert f["pointcloud/pc512"].shape == (512, 3)
         assert (project / "data" / "processed" / name / f"{name}.xml").is_file()
 

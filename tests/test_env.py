@@ -233,8 +233,10 @@ def test_compile_failure_falls_back_to_eager(builtin_data: Config) -> None:
     # A machine without a working C++ compiler: the env warns once per function and runs eagerly.
     import torch._inductor.config as inductor
 
+    # The smallest graph to compile (the com reward: no SDF lookups), as compiling is what
+    # takes the time here, up to the C++ step that fails.
     cfg = load_env_config(num_envs=3, objects="builtin_box", representation="com",
-                          data_dir=builtin_data.data_dir)
+                          reward={"kind": "com"}, data_dir=builtin_data.data_dir)
     environment = make_env(dataclasses.replace(cfg, compile=True))
     # inductor's own patch (monkeypatch's undo leaves fx_graph_cache unreadable for later tests).
     broken = {"cpp.cxx": ("/nonexistent-c++",), "fx_graph_cache": False}

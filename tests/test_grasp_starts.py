@@ -14,6 +14,7 @@ from trainer.config import RewardConfig, load_env_config
 from trainer.errors import TrainerError
 from trainer.randomness import RandomStreams
 from trainer.tasks import make_env
+from trainer.tasks.starts import GraspStarts
 from trainer.training.curriculum import LiftCurriculum
 from trainer.training.grasp_starts import record_grasp_starts
 from trainer.training.outcomes import EpisodeStats
@@ -25,12 +26,21 @@ def _cfg(builtin_data: Config, robot: dict | None = None, **overrides: object): 
                            robot={"home_above_objects": True, **(robot or {})}, **overrides)
 
 
-def test_resets_start_from_recorded_grasps_that_lifted(builtin_data: Config) -> None:
+@pytest.fixture(scope="module")
+def top_starts(builtin_data: Config) -> GraspStarts:
+    """The top grasp's starts on ``_cfg`` (one round, seed 0), recorded once for the tests that
+    use or compare with them (they only read them)."""
+    return record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "top", rounds=1)
+
+
+def test_resets_start_from_recorded_grasps_that_lifted(
+    builtin_data: Config, top_starts: GraspStarts
+) -> None:
     """The recorded captures are valid only for trials that lifted their object; with fraction
     1 every env that has one starts from one of its own captures (its state, flagged
     ``grasp_start``, step 0), the others start home; with fraction 0 none does."""
     cfg = _cfg(builtin_data)
-    starts = record_grasp_starts(cfg, RandomStreams(0), "top", rounds=1)
+    starts = top_starts
     E, S = starts.valid.shape
     assert E == 4 and S >= 2
     assert torch.equal(starts.valid.any(1), starts.lifted.any(1))
@@ -113,24 +123,28 @@ def test_grasp_starts_refuse_what_they_cannot_record(builtin_data: Config) -> No
         record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "best")
 
 
-def test_relative_hand_actions_record_the_same_starts(builtin_data: Config) -> None:
+def test_relative_hand_actions_record_the_same_starts(
+    builtin_data: Config, top_starts: GraspStarts
+) -> None:
     """The scripts command absolute targets; a run with relative hand actions has the same
     model and state, so its starts are recorded with absolute ones: the same states."""
-    absolute = record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "top", rounds=1)
+    absolute = top_starts
     relative = record_grasp_starts(_cfg(builtin_data, robot={"hand_action": "relative"}),
                                    RandomStreams(0), "top", rounds=1)
     assert torch.equal(relative.valid, absolute.valid)
     torch.testing.assert_close(relative.qpos, absolute.qpos)
 
 
-def test_closing_phase_keeps_the_states_of_the_closing_only(builtin_data: Config) -> None:
+def test_closing_phase_keeps_the_states_of_the_closing_only(
+    builtin_data: Config, top_starts: GraspStarts
+) -> None:
     """``phase = "closing"``: one state every 10 actions of the script's closing window and its
     end, where ``approach`` keeps every 10 actions from the 10th; both end with the same state,
     the hand closed (the same trials)."""
     from trainer.grasps.top import TopGrasp
 
     start, end = TopGrasp().close_window
-    approach = record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "top", rounds=1)
+    approach = top_starts
     closing = record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "top", rounds=1,
                                   phase="closing")
     assert closing.qpos.shape[1] == len({*range(start, end, 10), end})
@@ -170,7 +184,7 @@ def test_lift_phase_keeps_the_lift_and_starts_only_below_the_target(builtin_data
 
 
 def test_searched_grasp_records_beside_other_families(
-    builtin_data: Config, monkeypatch: pytest.MonkeyPatch
+    builtin_data: Config, top_starts: GraspStarts, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Several objects whose best families differ, one of them a searched (keyframe) grasp
     with a row for its own object only (as ``searched.json`` has for the ten Table I objects):
@@ -196,7 +210,7 @@ def test_searched_grasp_records_beside_other_families(
     monkeypatch.setattr(grasp_starts, "BEST", {"builtin_box": "searched",
                                                "builtin_cylinder": "top"})
     starts = record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "best", rounds=1)
-    alone = record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "top", rounds=1)
+    alone = top_starts
     env = make_env(_cfg(builtin_data), seed=RandomStreams(0))
     box = env.target_objects() == env.objects.names.index("builtin_box")
     env.close()
