@@ -83,41 +83,73 @@ def small_shadow_maps() -> Iterator[None]:
         yield
 
 
-SDF_GRIDS_KEPT = 12
-"""Dense SDF grids a test worker keeps in memory (32 MB each at 200^3), least recently used
-dropped first."""
+SDF_GRIDS_KEPT = 8
+"""Dense SDF grids a test worker keeps in memory (32 MB each at 200^3)."""
+SDF_LOOKUPS_KEPT_BYTES = 512 * 2**20
+"""Bytes of built ``SDFLookup``s a test worker keeps (64 MB of bricks per object at 200^3)."""
 
 
 @pytest.fixture(scope="session", autouse=True)
-def sdf_grids_read_once() -> Iterator[None]:
-    """Every env reads its objects' SDF grids (``SDFLookup.from_hdf5``), and decompressing
-    a 200^3 grid took half of an env's build: about half of the time of the tests that build
-    envs went into reading the same few files again. Here a worker reads each file's grid once,
-    keyed by the file's name, size and modification time (the copies of the built data
-    directories keep those), and hands every reader its own copy; the lookup is still built
-    from it by ``SDFLookup`` itself, and a changed or rebuilt file is read afresh."""
+def sdf_read_once() -> Iterator[None]:
+    """Every env builds an ``SDFLookup.from_hdf5`` of its objects' SDF grids, and reading and
+    bricking 200^3 grids was about 90 % of an env's build: a third to a half of the time of the
+    tests that build envs went into reading the same few files again. Here a test worker reads
+    each file's grid once, and keeps the lookups it built: a file is known by its name, size
+    and modification time (the copies of the built data directories keep those), so a changed
+    or rebuilt file is read afresh. Each reader gets its own copy (of the grid, of the lookup),
+    built by ``SDFLookup`` itself the first time; least recently used entries go first."""
+    import copy
+    import inspect
     from collections import OrderedDict
 
     import numpy as np
 
-    from geomprep import sdf_lookup
+    from geomprep import sdf_lookup, sdf_lookup_cpu
 
-    read = sdf_lookup.read_sdf_grid
-    kept: OrderedDict[tuple[str, int, int], np.ndarray] = OrderedDict()
-
-    def read_once(path: str | Path) -> np.ndarray:
+    def file_key(path: str | Path) -> tuple[str, int, int]:
         stat = Path(path).stat()
-        key = (Path(path).name, stat.st_size, stat.st_mtime_ns)
-        if key in kept:
-            kept.move_to_end(key)
+        return Path(path).name, stat.st_size, stat.st_mtime_ns
+
+    read_grid = sdf_lookup.read_sdf_grid
+    grids: OrderedDict[tuple, np.ndarray] = OrderedDict()
+
+    def read_grid_once(path: str | Path) -> np.ndarray:
+        key = file_key(path)
+        if key in grids:
+            grids.move_to_end(key)
         else:
-            kept[key] = read(path)
-            if len(kept) > SDF_GRIDS_KEPT:
-                kept.popitem(last=False)
-        return kept[key].copy()
+            grids[key] = read_grid(path)
+            if len(grids) > SDF_GRIDS_KEPT:
+                grids.popitem(last=False)
+        return grids[key].copy()
+
+    from_hdf5 = sdf_lookup.SDFLookup.from_hdf5.__func__
+    signature = inspect.signature(from_hdf5)
+    lookups: OrderedDict[tuple, sdf_lookup.SDFLookup] = OrderedDict()
+
+    def from_hdf5_once(*args: object, **kwargs: object) -> sdf_lookup.SDFLookup:
+        call = signature.bind(*args, **kwargs)
+        call.apply_defaults()
+        options = {k: v for k, v in call.arguments.items() if k not in ("cls", "paths")}
+        try:
+            files = tuple(file_key(p) for p in call.arguments["paths"])
+        except OSError:  # a missing file: from_hdf5's own error
+            return from_hdf5(*args, **kwargs)
+        key = (call.arguments["cls"], files, *(str(v) for v in options.values()),
+               sdf_lookup_cpu.kernel() is not None)
+        if key in lookups:
+            lookups.move_to_end(key)
+            return copy.deepcopy(lookups[key])
+        lookup = from_hdf5(*args, **kwargs)
+        if lookup.nbytes() <= SDF_LOOKUPS_KEPT_BYTES:
+            lookups[key] = copy.deepcopy(lookup)
+            while sum(kept.nbytes() for kept in lookups.values()) > SDF_LOOKUPS_KEPT_BYTES:
+                lookups.popitem(last=False)
+        return lookup
 
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(sdf_lookup, "read_sdf_grid", read_once)
+        patch.setattr(sdf_lookup, "read_sdf_grid", read_grid_once)
+        patch.setattr(sdf_lookup.SDFLookup, "from_hdf5", classmethod(from_hdf5_once))
         yield
 
 
