@@ -60,6 +60,13 @@ def ycb_mesh(name: str) -> trimesh.Trimesh:
     return trimesh.Trimesh(norm.vertices, norm.faces, process=False)
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The tests marked ``slow`` run first (otherwise in their order): with workers (README:
+    ``-n 2``) the longest ones then start early instead of one ending the run alone while the
+    other worker has nothing left."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 TEST_SHADOW_SIZE = 256
 """Shadow map size (pixels a side) of the offscreen renders in the tests."""
 
