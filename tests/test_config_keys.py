@@ -6,7 +6,6 @@ command that reads a config, checked like the file."""
 from __future__ import annotations
 
 import re
-import sys
 from pathlib import Path
 
 import pytest
@@ -14,6 +13,7 @@ import pytest
 import trainer.cli
 import trainer.ppo
 from geomgrasp.config_schema import field_docs
+from tests.tiny_runs import trainer_main
 from trainer.config import load_env_config, load_train_config
 from trainer.config_keys import all_keys, markdown, parse_sets
 from trainer.errors import TrainerError
@@ -23,14 +23,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def invoke(argv: list[str], monkeypatch: pytest.MonkeyPatch, capsys) -> tuple[int, str, str]:  # noqa: ANN001
     """The real entry point (as the installed ``trainer`` script): exit code, stdout, stderr."""
-    monkeypatch.setattr(sys, "argv", ["trainer", *argv])
-    try:
-        trainer.cli.main()
-        code = 0
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    out = capsys.readouterr()
-    return code, out.out, out.err.strip()
+    code, out, err = trainer_main(argv, monkeypatch, capsys)
+    return code, out, err.strip()
 
 
 def test_docs_config_md_is_up_to_date() -> None:

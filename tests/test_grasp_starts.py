@@ -10,6 +10,7 @@ import torch
 from tensordict import TensorDict
 
 from geomprep.config import Config
+from tests.tiny_runs import tiny_grasp_start_config
 from trainer.config import RewardConfig, load_env_config
 from trainer.errors import TrainerError
 from trainer.randomness import RandomStreams
@@ -231,7 +232,6 @@ def test_recording_the_starts_says_so_and_counts_against_the_time_budget(
     import time
 
     import trainer.ppo
-    from trainer.config import load_train_config
     from trainer.ppo import train
 
     recording: list[float] = []
@@ -244,15 +244,7 @@ def test_recording_the_starts_says_so_and_counts_against_the_time_budget(
         return starts
 
     monkeypatch.setattr(trainer.ppo, "record_grasp_starts", slow_record)
-    cfg = load_train_config(
-        env={"num_envs": 4, "objects": "builtin_cylinder", "representation": "bbox",
-             "data_dir": builtin_data.data_dir, "max_steps": 12,
-             "robot": {"home_above_objects": True}},
-        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
-             "hidden": (16, 16)},
-        run={"total_steps": 32, "seed": 0, "grasp_starts": 0.5, "grasp_start_family": "top",
-             "grasp_start_rounds": 1},
-    )
+    cfg = tiny_grasp_start_config(builtin_data)
     run = train(cfg, tmp_path / "run", progress=False)
     assert "recording the grasp starts" in capsys.readouterr().out
     (row,) = csv.DictReader(run.metrics.read_text().splitlines())

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from tests.tiny_runs import trainer_main
 from trainer import report
 from trainer.errors import TrainerError
 
@@ -595,23 +596,15 @@ def test_report_options_eval_folder_thresholds_and_allowed_differences(
 
 
 def test_report_command_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:  # noqa: ANN001
-    import sys
 
-    import trainer.cli
 
     monkeypatch.chdir(tmp_path)
     dirs = _table_one_runs(tmp_path / "runs")
     _move_eval(dirs[0], "eval-x")
 
     def invoke(*argv: str) -> tuple[int, str]:
-        monkeypatch.setattr(sys, "argv", ["trainer", "report", *argv])
-        try:
-            trainer.cli.main()
-            code = 0
-        except SystemExit as exc:
-            code = int(exc.code or 0)
-        out = capsys.readouterr()
-        return code, out.out + out.err
+        code, out, err = trainer_main(["report", *argv], monkeypatch, capsys)
+        return code, out + err
 
     code, out = invoke("runs/bbox_s0", "--eval", "eval-x", "--thresholds", "0.5,0.7")
     assert code == 0, out

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from geomprep.config import Config
-from tests.tiny_runs import script, tiny_dice_mug_run, tiny_run
+from tests.tiny_runs import script, tiny_dice_mug_run, tiny_grasp_start_config, tiny_run
 from trainer.training.run_dir import RunDir
 
 
@@ -108,21 +108,12 @@ def test_training_with_grasp_starts_and_probing_them(
     import torch
 
     import trainer.ppo
-    from trainer.config import load_train_config
     from trainer.ppo import train
     from trainer.tasks.starts import GraspStarts
 
     policy_probe = script("scripts", "policy_probe")
 
-    cfg = load_train_config(
-        env={"num_envs": 4, "objects": "builtin_cylinder", "representation": "bbox",
-             "data_dir": builtin_data.data_dir, "max_steps": 12,
-             "robot": {"home_above_objects": True}},
-        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
-             "hidden": (16, 16)},
-        run={"total_steps": 32, "checkpoint_every": 1, "seed": 0, "grasp_starts": 0.5,
-             "grasp_start_family": "top", "grasp_start_rounds": 1},
-    )
+    cfg = tiny_grasp_start_config(builtin_data, checkpoint_every=1)
     run = train(cfg, tmp_path / "run", progress=False)
     assert len(run.metrics.read_text().splitlines()) == 2  # the header and one iteration
     recorded = GraspStarts.load(run.grasp_starts)

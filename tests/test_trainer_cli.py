@@ -15,6 +15,7 @@ import pytest
 import trainer.cli
 import trainer.ppo
 from geomprep.config import Config
+from tests.tiny_runs import trainer_main
 from trainer.config import config_dict, load_train_config
 from trainer.training.run_dir import RunDir
 
@@ -59,14 +60,8 @@ def invoke(argv: list[str], monkeypatch: pytest.MonkeyPatch, capsys) -> tuple[in
 
 def invoke_all(argv: list[str], monkeypatch: pytest.MonkeyPatch, capsys) -> tuple[int, str, str]:  # noqa: ANN001, E501
     """Like ``invoke``: exit code, stdout, stderr (stripped)."""
-    monkeypatch.setattr(sys, "argv", ["trainer", *argv])
-    try:
-        trainer.cli.main()
-        code = 0
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    out = capsys.readouterr()
-    return code, out.out.strip(), out.err.strip()
+    code, out, err = trainer_main(argv, monkeypatch, capsys)
+    return code, out.strip(), err.strip()
 
 
 @pytest.mark.parametrize(

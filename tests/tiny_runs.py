@@ -48,3 +48,35 @@ def script(folder: str, name: str) -> ModuleType:
     sys.modules[spec.name] = module  # dataclasses look their module up there
     spec.loader.exec_module(module)
     return module
+
+
+def tiny_grasp_start_config(data: Config, **run: object):  # noqa: ANN201
+    """A 4-env bbox run on the built-in cylinder whose training episodes start half from the
+    top grasp's recorded states (one trial per env), one 32-step iteration; ``run`` overrides
+    ``[run]`` keys."""
+    from trainer.config import load_train_config
+
+    return load_train_config(
+        env={"num_envs": 4, "objects": "builtin_cylinder", "representation": "bbox",
+             "data_dir": data.data_dir, "max_steps": 12,
+             "robot": {"home_above_objects": True}},
+        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
+             "hidden": (16, 16)},
+        run={"total_steps": 32, "seed": 0, "grasp_starts": 0.5, "grasp_start_family": "top",
+             "grasp_start_rounds": 1, **run},
+    )
+
+
+def trainer_main(argv: list[str], monkeypatch, capsys) -> tuple[int, str, str]:  # noqa: ANN001
+    """``trainer ARGV`` through the real entry point (as the installed script): exit code,
+    stdout, stderr (as written)."""
+    import trainer.cli
+
+    monkeypatch.setattr(sys, "argv", ["trainer", *argv])
+    try:
+        trainer.cli.main()
+        code = 0
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    out = capsys.readouterr()
+    return code, out.out, out.err

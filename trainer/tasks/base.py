@@ -237,8 +237,10 @@ class GraspTask(EnvBase):
             self._restore(self._pending_restore)
             self._pending_restore = None
             return self._observe(reset=True)
-        ids = torch.arange(E, device=self.device) if mask is None else mask.reshape(E).nonzero()
-        ids = ids if mask is None else ids[:, 0]
+        if mask is None:
+            ids = torch.arange(E, device=self.device)
+        else:
+            ids = mask.reshape(E).nonzero()[:, 0]
         self._reset_envs(ids, full=mask is None)
         return self._observe(reset=True)
 
