@@ -6,6 +6,7 @@ logging). Prints both and the ratio (target >= 0.50: learning must not dominate 
 
     python bench/ppo_throughput.py [--task lift|bin] [--envs 64,256] [--repr com]
                                    [--bin-objects 5] [--iterations 5] [--no-compile]
+                                   [--set KEY=VALUE ...]
 
 ``--repr default`` uses the task's own representation (sq for lift, bbox for bin).
 
@@ -33,6 +34,7 @@ import torch
 from env_throughput import PAPER_STEPS_PER_S, WARP_ENVS, pick_objects, sync
 
 from trainer.config import check_backend, check_device, load_train_config
+from trainer.config_keys import parse_sets
 from trainer.errors import TrainerError
 from trainer.ppo import iteration_frames, make_agent, make_collector, train
 from trainer.randomness import run_streams
@@ -91,11 +93,22 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--bin-objects", type=int, default=5, help="objects per bin (bin task)")
     parser.add_argument("--data-dir", default=None, help="default: the config's data_dir")
     parser.add_argument("--iterations", type=int, default=5)
+    parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                        help="a configuration key for every row, e.g. ppo.shared_encoder=true")
     parser.add_argument(
         "--compile", action=argparse.BooleanOptionalAction, default=True,
         help="torch.compile the env's task computations (trainer run --compile)",
     )
     args = parser.parse_args(argv)
+    try:
+        run_rows(args, parser)
+    except TrainerError as exc:
+        parser.exit(2, f"error: {exc}\n")
+
+
+def run_rows(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """Measure and print one row per env count and representation."""
+    sets = parse_sets(args.sets, training=True)
     torch.set_num_threads(1)
     warp = args.backend == "warp"
     if warp:
@@ -128,9 +141,9 @@ def main(argv: list[str] | None = None) -> None:
                 env["representation"] = rep
             if args.task == "bin":
                 env["bin"] = {"num_objects": args.bin_objects}
-            frames = iteration_frames(load_train_config(env=env))
+            frames = iteration_frames(load_train_config(env=env, sets=sets))
             cfg = load_train_config(
-                env=env,
+                env=env, sets=sets,
                 run={"total_steps": frames * (args.iterations + 1), "checkpoint_every": 10**9},
             )
             measured = env_only(cfg, args.iterations, physics=warp)

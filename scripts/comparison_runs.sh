@@ -4,7 +4,9 @@
 # from its committed folder (results/cpu-comparison-2026-11-29/runs/cmp-ARM) or starts, trains
 # until its time budget in all reaches MINUTES of training (or its 4.6 M env steps), then copies
 # what the next chunk needs back into results/ (config.json, metrics.csv, grasp_starts.pt,
-# checkpoints/last.pt). Arms run one after the other; start two of these for the two cores:
+# checkpoints/last.pt). An arm may end in a named variant of the network, an arm of its own:
+# -shared ([ppo] shared_encoder = true: one encoder for the policy and the value), e.g.
+# pc512-sdf-s0-shared. Arms run one after the other; start two of these for the two cores:
 #
 #   nohup scripts/comparison_runs.sh 240 sq-sdf-s0 sdf-sdf-s1 > logs/cmp-a.log 2>&1 &
 #   nohup scripts/comparison_runs.sh 240 com-sdf-s0 bbox-com-s0 > logs/cmp-b.log 2>&1 &
@@ -18,7 +20,12 @@ cd "$ROOT"
 MINUTES=$1; shift
 HERE=results/cpu-comparison-2026-11-29
 for ARM in "$@"; do
-  IFS=- read -r REPR REWARD SEED <<< "$ARM"
+  IFS=- read -r REPR REWARD SEED VARIANT <<< "$ARM"
+  case "${VARIANT:-}" in
+    "") SETS=() ;;
+    shared) SETS=(--set ppo.shared_encoder=true) ;;
+    *) echo "$ARM: unknown variant '$VARIANT' (known: shared)" >&2; exit 2 ;;
+  esac
   RUN=runs/cmp-$ARM
   SAVED=$HERE/runs/cmp-$ARM
   if [ ! -d "$RUN" ] && [ -f "$SAVED/checkpoints/last.pt" ]; then
@@ -29,7 +36,7 @@ for ARM in "$@"; do
     trainer run --resume "$RUN" --minutes "$MINUTES"
   else
     trainer run --config "$HERE/comparison.toml" --repr "$REPR" --reward "$REWARD" \
-      --seed "${SEED#s}" --data-dir data --run-dir "$RUN" --minutes "$MINUTES"
+      --seed "${SEED#s}" --data-dir data --run-dir "$RUN" --minutes "$MINUTES" "${SETS[@]}"
   fi
   if [ -f "$RUN/checkpoints/last.pt" ]; then
     mkdir -p "$SAVED/checkpoints"

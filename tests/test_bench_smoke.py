@@ -84,6 +84,18 @@ def test_ppo_throughput(builtin_data: Config, monkeypatch: pytest.MonkeyPatch,
     assert float(ratio) == pytest.approx(float(train_rate) / float(env_rate), abs=0.01)
 
 
+def test_pointnet_update(capsys: pytest.CaptureFixture[str]) -> None:
+    lines = run_bench("pointnet_update", ["--repr", "pc32", "--envs", "4", "--repeats", "1",
+                                          "--set", "ppo.pointnet_hidden=[8,16]"], capsys)
+    assert lines[0].split()[-1] == "plain"
+    rows = [line.split() for line in lines[1:4]]
+    assert [" ".join(r[1:-4]) for r in rows] == ["plain", "fast", "fast + shared"]
+    for row in rows:
+        assert row[0] == "pc32" and all(float(v) > 0 for v in row[-4:-1])
+    assert rows[0][-1] == "1.00x"  # the baseline against itself
+    assert lines[-1].startswith("s/iteration: 5 epochs x minibatches of")
+
+
 def test_env_throughput(builtin_data: Config, capsys: pytest.CaptureFixture[str]) -> None:
     lines = run_bench("env_throughput", [
         "--tasks", "lift,bin", "--envs", "4", "--reprs", "com",

@@ -14,6 +14,10 @@ def test_the_chunk_script_parses_and_says_how_to_call_it() -> None:
     result = subprocess.run([str(SCRIPT)], capture_output=True, text=True)
     assert result.returncode == 2
     assert "usage: scripts/comparison_runs.sh MINUTES ARM" in result.stderr
+    # An unknown network variant stops before anything runs, naming the known ones.
+    result = subprocess.run([str(SCRIPT), "1", "pc32-sdf-s0-wide"], capture_output=True,
+                            text=True)
+    assert result.returncode == 2 and "unknown variant 'wide' (known: shared)" in result.stderr
     # Its config is the comparison's: the arms' common budget.
     config = (ROOT / "results" / "cpu-comparison-2026-11-29" / "comparison.toml").read_text()
     assert "total_steps = 4600000" in config

@@ -140,35 +140,85 @@ def test_running_norm_matches_batch_statistics() -> None:
     torch.testing.assert_close(norm.denormalize(norm(data[:5])), data[:5], atol=1e-4, rtol=0)
 
 
-def test_point_encoder_equals_activation_on_every_point_then_max() -> None:
-    # The encoder activates after the max over points (cheaper); that must be the PointNet of
-    # an activation on every point followed by a max, in values and in gradients.
+@pytest.mark.parametrize(("representation", "hidden"), [("pc32", (16, 24)), ("pc128", (16, 24)),
+                                                      ("pc32", (8, 64))])
+def test_point_encoder_equals_activation_on_every_point_then_max(
+    representation: str, hidden: tuple[int, int],
+) -> None:
+    # The encoder activates after the max over points, runs the points in chunks and, with
+    # more points than channels, gives the gradient only to each channel's argmax point: all
+    # that must be the PointNet of an activation on every point followed by a max, in values
+    # and gradients, for batches of any shape (the update's (B,), GAE's (E, T)).
+    from trainer.models import max_pooled_points
     from trainer.tasks.spec import observation_spec
 
-    cfg = load_train_config(env={"representation": "pc32"}, ppo={"pointnet_hidden": (16, 24)})
+    cfg = load_train_config(env={"representation": representation},
+                            ppo={"pointnet_hidden": hidden})
     spec = observation_spec(cfg.env, num_envs=6)["observation"]
     encoder = Agent(spec, cfg.ppo).policy_net.encoder
+    n = int(representation[2:])
     torch.manual_seed(0)
-    points = torch.randn(6, 32, 3)
-    weights = torch.randn(6, 24)
+    points = torch.randn(3, 700, n, 3)  # 2,100 samples: several chunks of POINTS_PER_CHUNK
+    weights = torch.randn(3, 700, hidden[-1])
 
     def reference(x: torch.Tensor) -> torch.Tensor:
         per_point = torch.nn.functional.elu(encoder.points(x))
         return per_point.amax(dim=-2)
 
-    ours = encoder.points_activation(encoder.points(points).max(dim=-2).values)
+    ours = encoder.points_activation(max_pooled_points(encoder.points, points))
     theirs = reference(points)
-    torch.testing.assert_close(ours, theirs, rtol=0, atol=0)
+    torch.testing.assert_close(ours, theirs, rtol=1e-5, atol=1e-6)
+    with torch.no_grad():
+        torch.testing.assert_close(max_pooled_points(encoder.points, points),
+                                   encoder.points(points).max(dim=-2).values, rtol=0, atol=1e-6)
     grads = []
     for out in (ours, theirs):
         encoder.zero_grad()
-        (out * weights).sum().backward(retain_graph=True)
+        (out * weights).sum().backward()
         grads.append([p.grad.clone() for p in encoder.points.parameters()])
     for a, b in zip(*grads, strict=True):
-        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
     # a checkpoint of the per-point MLP with its last ELU (the earlier form) loads as is
     keys = set(encoder.points.state_dict())
     assert keys == {"0.weight", "0.bias", "2.weight", "2.bias"}
+
+
+def test_shared_encoder_runs_once_per_minibatch_and_learns_from_both_losses() -> None:
+    # [ppo] shared_encoder: PPO's loss encodes a minibatch once (the actor writes it, the value
+    # head reads it); the value and policy equal the networks' own on the observations, and
+    # the critic's loss alone trains the shared encoder (its gradient reaches the point MLP).
+    from tensordict import TensorDict
+
+    from trainer.tasks.spec import observation_spec
+
+    cfg = load_train_config(env={"representation": "pc32"},
+                            ppo={"pointnet_hidden": (16, 24), "shared_encoder": True})
+    spec = observation_spec(cfg.env, num_envs=8)["observation"]
+    agent = Agent(spec, cfg.ppo)
+    assert agent.value_net.encoder is agent.policy_net.encoder
+    torch.manual_seed(0)
+    obs = {k: torch.randn(8, *spec[k].shape[1:]) for k in ("proprio", "object")}
+    data = TensorDict(obs, batch_size=[8])
+    with torch.no_grad():
+        data = agent.actor(data)
+        agent.critic_denorm(data)
+    data["advantage"] = torch.randn(8, 1)
+    data["value_target"] = torch.randn(8, 1)
+    data = data.exclude(Agent.ENCODED)
+    calls = []
+    agent.policy_net.encoder.register_forward_hook(lambda *_: calls.append(1))
+    loss = ClipPPOLoss(agent.actor, agent.critic, entropy_coeff=0.0)
+    out = loss(data)
+    assert len(calls) == 1
+    loc, _ = agent.policy_net(obs["proprio"], obs["object"])
+    value = agent.value_net(obs["proprio"], obs["object"])
+    torch.testing.assert_close(agent.critic(agent.actor(data.clone()))["state_value"], value)
+    torch.testing.assert_close(agent.actor(data.clone())["loc"], loc)
+    agent.zero_grad()
+    out["loss_critic"].backward()
+    grad = agent.policy_net.encoder.points[0].weight.grad
+    assert grad is not None and grad.abs().sum() > 0
+    assert agent.policy_net.loc.weight.grad is None  # the critic's loss does not reach the policy
 
 
 def test_loss_sees_updated_normalizers(builtin_data: Config) -> None:
@@ -194,10 +244,19 @@ def test_loss_sees_updated_normalizers(builtin_data: Config) -> None:
     assert float(out["clip_fraction"]) == 0.0
 
 
-@pytest.mark.parametrize("representation", ["com", "pc32"])
+@pytest.mark.parametrize("representation", ["com", "pc32", "pc32-shared"])
 def test_train_writes_run_directory(builtin_data: Config, tmp_path: Path, representation: str) -> None:  # noqa: E501
+    representation, _, shared = representation.partition("-")
     cfg = tiny_config(builtin_data.data_dir, representation=representation)
+    if shared:
+        cfg = dataclasses.replace(cfg, ppo=dataclasses.replace(cfg.ppo, shared_encoder=True))
     run = train(cfg, tmp_path / "run", progress=False)
+    if shared:  # it resumes from its checkpoint (the shared weights load into one encoder)
+        more = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, total_steps=128))
+        train(more, run.path, resume=True, progress=False)
+        rows = list(csv.DictReader(run.metrics.read_text().splitlines()))
+        assert [int(r["iteration"]) for r in rows] == [1, 2, 3, 4]
+        return
     config = json.loads(run.config.read_text())
     assert config["env"]["representation"] == representation
     rows = list(csv.DictReader(run.metrics.read_text().splitlines()))

@@ -450,6 +450,10 @@ class PPOConfig(_Checked):
     (results/cpu-knife-arms-2026-11-26/)."""
     pointnet_hidden: tuple[int, ...] = bounded((64, 128), ge=1)
     """Shared per-point MLP of the point-cloud encoder (then max pooling)."""
+    shared_encoder: bool = False
+    """Ours: one object (and context) encoder for the policy and the value, run once per
+    minibatch, trained by both losses (the authors' public code shares its whole network);
+    halves a point cloud's encoder cost (bench/pointnet_update.py, results/config-evidence.md)."""
     context_hidden: tuple[int, ...] = bounded((64, 64), ge=1)
     """Shared per-object MLP of the context encoder (bin task with context; then a masked max)."""
     stagger_episodes: bool = False

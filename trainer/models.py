@@ -12,7 +12,7 @@ the one used by GAE the value in reward units.
 from __future__ import annotations
 
 import torch
-from tensordict.nn import TensorDictModule
+from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 from torchrl.data import Composite
 from torchrl.modules import IndependentNormal, ProbabilisticActor
@@ -110,6 +110,37 @@ def mlp(sizes: list[int], activation: type[nn.Module] = nn.ELU, last_activation:
     return nn.Sequential(*layers)
 
 
+POINTS_PER_CHUNK = 8192
+"""Points the per-point MLP processes at a time (whole samples): its activations then stay in
+the CPU's cache, about twice as fast as one pass over a 1,024-frame minibatch of pc128
+(bench/pointnet_update.py)."""
+
+
+def max_pooled_points(layers: nn.Sequential, points: torch.Tensor) -> torch.Tensor:
+    """``layers`` (a per-point MLP ending in a linear layer) on every point of ``points``
+    (B, N, 3), then the max over the points: (B, C), in value and gradient what
+    ``layers(points).max(dim=-2).values`` computes, at a fraction of the cost.
+
+    The max passes the gradient of each output channel to one point (its argmax). So where
+    gradients are needed and there are more points than channels, the points are first run
+    without autograd to find each channel's argmax, and only those points (B, C, 3) are run
+    again with it, the last layer reduced to each channel's own row. Without gradients, or
+    with fewer points than channels, it is the plain max. Either way in chunks of
+    ``POINTS_PER_CHUNK`` points (rounding differs from one pass by float error only)."""
+    batch, (n, dim) = points.shape[:-2], points.shape[-2:]
+    flat = points.reshape(-1, n, dim)
+    chunks = flat.split(max(1, POINTS_PER_CHUNK // n))
+    last = layers[-1]
+    if not (torch.is_grad_enabled() and n > last.out_features):
+        pooled = torch.cat([layers(c).max(dim=-2).values for c in chunks])
+    else:
+        with torch.no_grad():
+            argmax = torch.cat([layers(c).max(dim=-2).indices for c in chunks])
+        chosen = torch.gather(flat, -2, argmax[..., None].expand(*argmax.shape, dim))
+        pooled = (layers[:-1](chosen) * last.weight).sum(-1) + last.bias
+    return pooled.reshape(*batch, -1)
+
+
 class Encoder(nn.Module):
     """Normalized observation -> feature vector: the object representation as it is, or for
     point clouds a shared per-point MLP followed by max pooling (PointNet-like); the context
@@ -140,9 +171,7 @@ class Encoder(nn.Module):
     ) -> torch.Tensor:
         proprio, obj = self.norm(proprio, obj)
         if self.points is not None:
-            # max, not amax: its backward scatters into the argmax, where amax's builds and
-            # divides a tie mask as large as the per-point features (the update's main cost).
-            obj = self.points_activation(self.points(obj).max(dim=-2).values)
+            obj = self.points_activation(max_pooled_points(self.points, obj))
         parts = [proprio, obj]
         if self.context is not None:
             features = self.context(self.norm.context(context))
@@ -181,7 +210,11 @@ class PolicyNet(nn.Module):
             nn.init.zeros_(self.log_std_head.weight)
 
     def forward(self, *obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        features = self.body(self.encoder(*obs))
+        return self.head(self.encoder(*obs))
+
+    def head(self, encoded: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The layers after the encoder: encoded observation -> (loc, scale)."""
+        features = self.body(encoded)
         loc = self.loc(features)
         log_std = self.log_std
         if self.log_std_head is not None:
@@ -200,21 +233,41 @@ class PolicyNet(nn.Module):
 
 
 class ValueNet(nn.Module):
-    """(proprio, object) -> normalized state value (E, 1)."""
+    """(proprio, object) -> normalized state value (E, 1); with ``encoder`` given, it uses that
+    one (the policy's, ``[ppo] shared_encoder``) instead of its own."""
 
-    def __init__(self, shapes: ObservationShapes, norm: ObservationNorm, cfg: PPOConfig) -> None:
+    def __init__(
+        self, shapes: ObservationShapes, norm: ObservationNorm, cfg: PPOConfig,
+        encoder: Encoder | None = None,
+    ) -> None:
         super().__init__()
-        self.encoder = Encoder(shapes, norm, cfg)
+        self.encoder = encoder if encoder is not None else Encoder(shapes, norm, cfg)
         self.body = mlp([self.encoder.out_dim, *cfg.hidden, 1], last_activation=False)
 
     def forward(self, *obs: torch.Tensor) -> torch.Tensor:
-        return self.body(self.encoder(*obs))
+        return self.head(self.encoder(*obs))
+
+    def head(self, encoded: torch.Tensor) -> torch.Tensor:
+        """The layers after the encoder: encoded observation -> normalized value."""
+        return self.body(encoded)
+
+
+class Head(nn.Module):
+    """A network's layers after its encoder (``net.head``) as a module of the encoded
+    observation, for the shared encoder's wiring in ``Agent``."""
+
+    def __init__(self, net: PolicyNet | ValueNet) -> None:
+        super().__init__()
+        self.net = net
+
+    def forward(self, encoded: torch.Tensor) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        return self.net.head(encoded)
 
 
 class Denormalize(nn.Module):
     """A normalized-value network with its output mapped back to reward units."""
 
-    def __init__(self, value_net: ValueNet, value_norm: RunningNorm) -> None:
+    def __init__(self, value_net: ValueNet | Head, value_norm: RunningNorm) -> None:
         super().__init__()
         self.value_net = value_net
         self.value_norm = value_norm
@@ -229,7 +282,14 @@ class Agent(nn.Module):
     ``actor``: TorchRL ProbabilisticActor writing ``action`` and its log-prob;
     ``critic``: normalized ``state_value`` (for the loss); ``critic_denorm``: ``state_value``
     in reward units (for GAE). ``observation_spec``: the env's (``trainer.tasks.observation_spec``).
+
+    With ``[ppo] shared_encoder`` the value network uses the policy's encoder; the actor writes
+    the encoded observation (``ENCODED``) and ``critic`` is the value head reading it, so the
+    loss, which runs the actor first, encodes each minibatch once (TorchRL's documented pattern
+    for an actor and critic sharing a module).
     """
+
+    ENCODED = "encoded_observation"
 
     def __init__(self, observation_spec: Composite, cfg: PPOConfig) -> None:
         super().__init__()
@@ -238,17 +298,29 @@ class Agent(nn.Module):
         self.obs_norm = ObservationNorm(shapes)
         self.value_norm = RunningNorm((1,), clip=1e6)
         self.policy_net = PolicyNet(shapes, self.obs_norm, cfg)
-        self.value_net = ValueNet(shapes, self.obs_norm, cfg)
+        shared = self.policy_net.encoder if cfg.shared_encoder else None
+        self.value_net = ValueNet(shapes, self.obs_norm, cfg, encoder=shared)
         keys = self.obs_keys
+        if shared is None:
+            policy: TensorDictModule | TensorDictSequential = TensorDictModule(
+                self.policy_net, in_keys=keys, out_keys=["loc", "scale"])
+            self.critic = TensorDictModule(self.value_net, in_keys=keys, out_keys=["state_value"])
+            self.critic_denorm = TensorDictModule(
+                Denormalize(self.value_net, self.value_norm), in_keys=keys,
+                out_keys=["state_value"],
+            )
+        else:
+            encode = TensorDictModule(shared, in_keys=keys, out_keys=[self.ENCODED])
+            policy = TensorDictSequential(encode, TensorDictModule(
+                Head(self.policy_net), in_keys=[self.ENCODED], out_keys=["loc", "scale"]))
+            self.critic = TensorDictModule(
+                Head(self.value_net), in_keys=[self.ENCODED], out_keys=["state_value"])
+            self.critic_denorm = TensorDictSequential(encode, TensorDictModule(
+                Denormalize(Head(self.value_net), self.value_norm), in_keys=[self.ENCODED],
+                out_keys=["state_value"]))
         self.actor = ProbabilisticActor(
-            TensorDictModule(self.policy_net, in_keys=keys, out_keys=["loc", "scale"]),
-            in_keys=["loc", "scale"],
-            distribution_class=IndependentNormal,
+            policy, in_keys=["loc", "scale"], distribution_class=IndependentNormal,
             return_log_prob=True,
-        )
-        self.critic = TensorDictModule(self.value_net, in_keys=keys, out_keys=["state_value"])
-        self.critic_denorm = TensorDictModule(
-            Denormalize(self.value_net, self.value_norm), in_keys=keys, out_keys=["state_value"]
         )
 
     @torch.no_grad()

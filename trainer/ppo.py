@@ -418,8 +418,10 @@ class PPOUpdate:
         agent.value_norm.update(data["value_target"])
         data["value_target"] = agent.value_norm(data["value_target"])
         data["state_value"] = agent.value_norm(data["state_value"])
-        # The collector's own bookkeeping (trajectory ids) stays on the CPU: not a loss input.
-        flat = data.exclude("collector").reshape(-1)
+        # The collector's own bookkeeping (trajectory ids) stays on the CPU: not a loss input;
+        # nor is a shared encoder's output of the rollout (the loss's actor encodes afresh).
+        encoded = Agent.ENCODED
+        flat = data.exclude("collector", encoded, ("next", encoded)).reshape(-1)
         # Loss statistics stay on the device (a float() per minibatch would wait for the GPU
         # every time); they are read once per epoch (the learning-rate schedule).
         losses: dict[str, list[torch.Tensor]] = {k: [] for k in LOSS_KEYS}
