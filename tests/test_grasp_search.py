@@ -14,6 +14,7 @@ import torch
 
 import trainer.cli
 from geomprep.config import Config
+from tests.tiny_runs import own_data_dir, trainer_main
 from trainer.config import load_env_config
 from trainer.errors import TrainerError
 from trainer.grasps import FAMILIES, TopGrasp, record_grasp, searched
@@ -140,16 +141,6 @@ def _config(tmp_path: Path) -> Path:
     return path
 
 
-def _own_data_dir(data: Config, tmp_path: Path) -> Path:
-    """A data directory whose built objects are ``data``'s (linked) and whose searched grasps
-    are its own."""
-    own = tmp_path / "data"
-    own.mkdir()
-    for part in ("raw", "interim", "processed"):
-        (own / part).symlink_to(data.data_dir / part)
-    return own
-
-
 def _search(data_dir: Path, *extra: str) -> list[str]:
     return ["trainer", "grasp-search", "--objects", "builtin_cylinder", "--population", "2",
             "--trials", "1", "--iterations", "1", "--elite", "2", "--data-dir", str(data_dir),
@@ -166,7 +157,7 @@ def test_grasp_search_writes_the_data_directory_per_hand(
     configuration" error); the ``searched`` family runs the one of the env's hand and physics;
     a damaged file is one line, before any search."""
     seed = searched.SEARCHED_PATH.read_bytes()
-    data_dir = _own_data_dir(builtin_data, tmp_path)
+    data_dir = own_data_dir(builtin_data, tmp_path / "data")
     monkeypatch.setattr(sys, "argv", _search(data_dir))
     trainer.cli.main()
     path = searched.object_path(data_dir, "builtin_cylinder")
@@ -281,7 +272,81 @@ def test_best_families_group_objects_and_carry_the_hand() -> None:
     assert list(best_variants(["029_plate"])) == ["pinch:rim"]  # upright plates only
     with pytest.raises(TrainerError) as info:
         best_variants(["013_apple", "builtin_mug"])
-    assert str(info.value).startswith("no grasp family lifts builtin_mug yet")
+    assert str(info.value).startswith("no grasp family lifts builtin_mug yet: search one with "
+                                      "`trainer grasp-search --objects builtin_mug`")
+    # An object that has a searched grasp takes the searched family; BEST still decides for
+    # the objects it names.
+    batches = best_variants(["013_apple", "builtin_mug", "062_dice"],
+                            searched=["builtin_mug", "013_apple"])
+    assert {spec: names for spec, (_, names) in batches.items()} == {
+        "top": ["013_apple"], "searched": ["builtin_mug", "062_dice"]}
+    assert batches["searched"][0].env == hand
+
+
+def test_find_grasps_searches_and_stores_only_what_nobody_has(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``find_grasps``: an object with a grasp (here the shipped seed's, which serves every
+    hand and physics without one of its own) is not searched; one without is searched once,
+    said in a line before and after, and stored in the data directory with its search's
+    settings, its configuration and the hand and physics, where the next call finds it."""
+    import trainer.grasps.search as search
+    from trainer.grasps.search import SearchResult, SearchSettings, find_grasps
+
+    cfg = load_env_config(data_dir=tmp_path, robot={"hand_forcerange": 1.5})
+    calls: list[str] = []
+
+    def fake_search(cfg, name: str, settings: SearchSettings) -> SearchResult:  # noqa: ANN001
+        calls.append(name)
+        return SearchResult(top_grasp_theta(), 3, 6, [{"iteration": 0}])
+
+    monkeypatch.setattr(search, "search_grasp", fake_search)
+    lines: list[str] = []
+    tiny = SearchSettings(population=4, trials=2, iterations=1, elite=2)
+    found = find_grasps(cfg, ["builtin_box", "062_dice"], tiny, lines.append)
+    assert calls == ["builtin_box"]
+    assert found["062_dice"] == load_searched()["objects"]["062_dice"]
+    path = searched.object_path(tmp_path, "builtin_box")
+    assert lines == [
+        "no grasp for builtin_box with this hand and physics: searching (4 candidates x 2 "
+        "trials, 1 iterations)",
+        f"builtin_box: the grasp found lifted 3 of 6 final trials; stored in {path}",
+    ]
+    entry = searched.read_object(tmp_path, "builtin_box")[searched.hand_key(cfg)]
+    assert found["builtin_box"] == entry
+    assert entry["lifted"] == 3 and entry["history"] == [{"iteration": 0}]
+    assert entry["search"]["population"] == 4 and entry["search"]["refine"] is False
+    assert entry["config"]["robot"] == {"hand_forcerange": 1.5}
+    assert entry["hand_and_physics"] == searched.hand_and_physics(cfg)
+    torch.testing.assert_close(torch.tensor(searched.theta_row(entry)), top_grasp_theta(),
+                               atol=1e-4, rtol=0)  # (stored to 4 decimals)
+    lines.clear()
+    assert find_grasps(cfg, ["builtin_box", "062_dice"], tiny, lines.append) == found
+    assert calls == ["builtin_box"] and lines == []  # stored: not searched again
+    assert SearchSettings().describe() == (
+        "24 candidates x 4 trials, 6 iterations, about 2-3 minutes of one core")
+
+
+def test_demo_of_the_best_families_runs_searched_grasps(
+    builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys,  # noqa: ANN001
+) -> None:
+    """``trainer demo --family best`` on an object without a ``BEST`` entry: a one-line error
+    naming the search while it has no grasp; once the data directory has one for the demo's
+    hand and physics, the demo runs it."""
+    data_dir = own_data_dir(builtin_data, tmp_path / "data")
+    argv = ["demo", "--family", "best", "--objects", "builtin_cylinder", "--trials", "1",
+            "--video", "", "--data-dir", str(data_dir)]
+    code, out, err = trainer_main(argv, monkeypatch, capsys)
+    assert code == 1 and err.strip().startswith(
+        "error: no grasp family lifts builtin_cylinder yet: search one with `trainer "
+        "grasp-search --objects builtin_cylinder`") and "\n" not in err.strip()
+    hand = load_env_config(data_dir=data_dir, **FAMILIES["searched"].variants["base"].env)
+    theta = {p: float(v) for p, v in zip(PARAMS, top_grasp_theta(), strict=True)}
+    searched.write_entry(data_dir, "builtin_cylinder", searched.hand_key(hand), {"theta": theta})
+    code, out, err = trainer_main(argv, monkeypatch, capsys)
+    assert code == 0, err
+    assert "builtin_cylinder  lifted " in out
 
 
 SEARCHED_OBJECTS = ("053_mini_soccer_ball", "073-g_lego_duplo", "062_dice")

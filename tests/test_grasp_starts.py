@@ -10,7 +10,7 @@ import torch
 from tensordict import TensorDict
 
 from geomprep.config import Config
-from tests.tiny_runs import tiny_grasp_start_config
+from tests.tiny_runs import own_data_dir, tiny_grasp_start_config
 from trainer.config import RewardConfig, load_env_config
 from trainer.errors import TrainerError
 from trainer.randomness import RandomStreams
@@ -117,11 +117,45 @@ def test_bin_starts_restore_the_clutter_and_the_target(builtin_data: Config) -> 
     env.close()
 
 
-def test_grasp_starts_refuse_what_they_cannot_record(builtin_data: Config) -> None:
-    """A one-line error for objects without a best family."""
-    with pytest.raises(TrainerError, match="grasp_starts: no scripted grasp lifts builtin_cylinder"
-                       ", builtin_box yet .*set grasp_starts = 0"):
-        record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "best")
+def test_objects_without_a_best_family_get_a_searched_grasp_once(
+    builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Family "best" on objects nobody tuned (no ``BEST`` entry): each is searched once, said
+    in a line, stored in the data directory for the run's hand and physics, and its searched
+    grasp recorded (the searched family's script reads the stored rows); the next recording
+    finds them and searches nothing."""
+    import trainer.grasps.search as search
+    from trainer.grasps import searched
+    from trainer.grasps.search import SearchSettings
+
+    data_dir = own_data_dir(builtin_data, tmp_path / "data")
+    cfg = _cfg(Config(data_dir=data_dir))
+    searches: list[str] = []
+    real_search = search.search_grasp
+
+    def counted(cfg, name: str, settings: SearchSettings) -> search.SearchResult:  # noqa: ANN001
+        searches.append(name)
+        return real_search(cfg, name, settings)
+
+    monkeypatch.setattr(search, "search_grasp", counted)
+    tiny = SearchSettings(population=2, trials=1, iterations=1, elite=2)
+    lines: list[str] = []
+    starts = record_grasp_starts(cfg, RandomStreams(0), "best", rounds=1, search=tiny,
+                                 echo=lines.append)
+    assert searches == ["builtin_cylinder", "builtin_box"]
+    assert lines[0] == ("no grasp for builtin_cylinder with this hand and physics: searching "
+                        "(2 candidates x 1 trials, 1 iterations)")
+    assert len(lines) == 4 and lines[1].startswith("builtin_cylinder: the grasp found lifted")
+    for name in ("builtin_cylinder", "builtin_box"):
+        assert set(searched.read_object(data_dir, name)) == {searched.hand_key(cfg)}
+    assert starts.valid.shape[0] == 4 and torch.equal(starts.valid.any(1),
+                                                      starts.lifted.any(1))
+    lines.clear()
+    again = record_grasp_starts(cfg, RandomStreams(0), "best", rounds=1, search=tiny,
+                                echo=lines.append)
+    assert searches == ["builtin_cylinder", "builtin_box"] and lines == []
+    assert torch.equal(again.valid, starts.valid)
+    torch.testing.assert_close(again.qpos, starts.qpos)
 
 
 def test_relative_hand_actions_record_the_same_starts(
@@ -194,7 +228,7 @@ def test_searched_grasp_records_beside_other_families(
     searched grasp for ...".)"""
     import trainer.training.grasp_starts as grasp_starts
     from trainer.grasps.families import Variant
-    from trainer.grasps.keyframes import KeyframeGrasp, top_grasp_theta
+    from trainer.grasps.keyframes import PARAMS, KeyframeGrasp, top_grasp_theta
     from trainer.grasps.top import TopGrasp
 
     row = tuple(top_grasp_theta().tolist())
@@ -207,7 +241,10 @@ def test_searched_grasp_records_beside_other_families(
             env.close()
     best = {"searched": (Variant(searched), ["builtin_box"]),
             "top": (Variant(TopGrasp()), ["builtin_cylinder"])}
-    monkeypatch.setattr(grasp_starts, "best_variants", lambda names: best)
+    monkeypatch.setattr(grasp_starts, "best_variants", lambda names, searched=(): best)
+    # (the keyframe grasp's stand-in for a searched one, found without a search)
+    monkeypatch.setattr(grasp_starts, "find_grasps", lambda cfg, names, *args: {
+        n: {"theta": dict(zip(PARAMS, row, strict=True))} for n in names})
     monkeypatch.setattr(grasp_starts, "BEST", {"builtin_box": "searched",
                                                "builtin_cylinder": "top"})
     starts = record_grasp_starts(_cfg(builtin_data), RandomStreams(0), "best", rounds=1)
@@ -244,8 +281,108 @@ def test_recording_the_starts_says_so_and_counts_against_the_time_budget(
         return starts
 
     monkeypatch.setattr(trainer.ppo, "record_grasp_starts", slow_record)
-    cfg = tiny_grasp_start_config(builtin_data)
+    # (its own data directory: no recording of this config kept by another test of the session)
+    cfg = tiny_grasp_start_config(Config(data_dir=own_data_dir(builtin_data, tmp_path / "data")))
     run = train(cfg, tmp_path / "run", progress=False)
     assert "recording the grasp starts" in capsys.readouterr().out
     (row,) = csv.DictReader(run.metrics.read_text().splitlines())
     assert len(recording) == 1 and float(row["wall_time_s"]) >= recording[0]
+
+
+def test_a_repeated_run_loads_the_starts_an_earlier_run_recorded(
+    builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
+) -> None:
+    """The first run of a config records its grasp starts and keeps them in the data directory
+    under the key of what they depend on; a second run of the same config and seed loads them
+    (said in a line) instead of recording, and trains from the same starts; another seed is
+    another key."""
+    import dataclasses
+
+    import trainer.ppo
+    from trainer.ppo import train
+    from trainer.training.grasp_starts import cached_starts_path, object_grasps
+
+    data = Config(data_dir=own_data_dir(builtin_data, tmp_path / "data"))
+    cfg = tiny_grasp_start_config(data)
+    recordings: list[int] = []
+    real_record = trainer.ppo.record_grasp_starts
+
+    def counted(*args: object, **kwargs: object) -> GraspStarts:
+        recordings.append(1)
+        return real_record(*args, **kwargs)
+
+    monkeypatch.setattr(trainer.ppo, "record_grasp_starts", counted)
+    first = train(cfg, tmp_path / "first", progress=False)
+    cached = cached_starts_path(cfg, object_grasps(cfg.env, "top"))
+    assert recordings == [1] and cached.parent == data.data_dir / "grasps" / "starts"
+    capsys.readouterr()
+    second = train(cfg, tmp_path / "second", progress=False)
+    out = capsys.readouterr().out
+    assert recordings == [1]
+    assert f"grasp starts from {cached} (recorded by an earlier run" in out
+    assert "recording the grasp starts" not in out
+    a, b = GraspStarts.load(first.grasp_starts), GraspStarts.load(second.grasp_starts)
+    assert torch.equal(a.valid, b.valid) and torch.equal(a.qpos, b.qpos)
+    other = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, seed=1))
+    assert cached_starts_path(other, object_grasps(cfg.env, "top")) != cached
+
+
+def test_damaged_grasp_starts_are_recorded_again(
+    builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
+) -> None:
+    """A run's ``grasp_starts.pt`` or the data directory's recording that does not read back
+    (cut short, other bytes, a part missing) is said in one line and replaced, no traceback:
+    recorded again (the same states: the same streams) where the other copy is damaged too,
+    else taken from the intact copy; ``GraspStarts.load`` refuses each in one line."""
+    import trainer.ppo
+    from trainer.ppo import grasp_starts_of
+    from trainer.randomness import run_streams
+    from trainer.training.grasp_starts import cached_starts_path, object_grasps
+    from trainer.training.run_dir import RunDir
+
+    data = Config(data_dir=own_data_dir(builtin_data, tmp_path / "data"))
+    cfg = tiny_grasp_start_config(data)
+    run = RunDir(tmp_path / "run")
+    run.path.mkdir()
+    recordings: list[int] = []
+    real_record = trainer.ppo.record_grasp_starts
+
+    def counted(*args: object, **kwargs: object) -> GraspStarts:
+        recordings.append(1)
+        return real_record(*args, **kwargs)
+
+    monkeypatch.setattr(trainer.ppo, "record_grasp_starts", counted)
+    starts, _ = grasp_starts_of(cfg, run, run_streams(cfg), False, fresh=True)
+    cached = cached_starts_path(cfg, object_grasps(cfg.env, "top"))
+    assert recordings == [1] and cached.is_file() and run.grasp_starts.is_file()
+    whole = run.grasp_starts.read_bytes()
+    # Each damage is refused by the loader in one line naming the file.
+    torch.save({"qpos": starts.qpos}, tmp_path / "part.pt")
+    (tmp_path / "cut.pt").write_bytes(whole[: len(whole) // 2])
+    (tmp_path / "text.pt").write_text("not a tensor file\n")
+    for damaged in ("part.pt", "cut.pt", "text.pt"):
+        with pytest.raises(TrainerError) as info:
+            GraspStarts.load(tmp_path / damaged)
+        message = str(info.value)
+        assert message.startswith(f"{tmp_path / damaged} is damaged (") and "\n" not in message
+    # Both copies damaged: a resumed run records again, the same states, and mends both.
+    run.grasp_starts.write_bytes(whole[:100])
+    cached.write_text("not a tensor file\n")
+    capsys.readouterr()
+    again, _ = grasp_starts_of(cfg, run, run_streams(cfg), False, fresh=False)
+    out = capsys.readouterr().out
+    assert recordings == [1, 1]
+    (line,) = [x for x in out.splitlines() if "damaged" in x]
+    assert line.startswith(f"{run.grasp_starts} is damaged (") and (
+        f"{cached} is damaged (" in line) and line.endswith(
+        "recording the grasp starts again; the same streams give the same states")
+    assert torch.equal(again.valid, starts.valid) and torch.equal(again.qpos, starts.qpos)
+    for path in (run.grasp_starts, cached):
+        assert torch.equal(GraspStarts.load(path).qpos, starts.qpos)
+    # Only the run's copy damaged: the intact recording is taken, nothing recorded.
+    run.grasp_starts.write_bytes(whole[:100])
+    again, _ = grasp_starts_of(cfg, run, run_streams(cfg), False, fresh=False)
+    out = capsys.readouterr().out
+    assert recordings == [1, 1] and torch.equal(again.qpos, starts.qpos)
+    assert f"{run.grasp_starts} is damaged (" in out and f"grasp starts from {cached}" in out
+    assert torch.equal(GraspStarts.load(run.grasp_starts).qpos, starts.qpos)

@@ -67,6 +67,16 @@ def tiny_grasp_start_config(data: Config, **run: object):  # noqa: ANN201
     )
 
 
+def own_data_dir(data: Config, path: Path) -> Path:
+    """``path``: a data directory whose built objects (and settled banks) are ``data``'s,
+    linked, and whose other contents (searched grasps, recorded grasp starts) are its own, so
+    that what a test stores there is not found by another test of the session."""
+    path.mkdir(parents=True)
+    for part in ("raw", "interim", "processed"):
+        (path / part).symlink_to(data.data_dir / part)
+    return path
+
+
 def trainer_main(argv: list[str], monkeypatch, capsys) -> tuple[int, str, str]:  # noqa: ANN001
     """``trainer ARGV`` through the real entry point (as the installed script): exit code,
     stdout, stderr (as written)."""

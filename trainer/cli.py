@@ -150,7 +150,7 @@ def demo(
     _at_least("--trials", trials, 1)
     _at_least("--seed", seed, 0)
     given = _sets(sets)
-    from trainer.grasps import family_variants
+    from trainer.grasps import FAMILIES, family_variants, searched
     from trainer.grasps.families import best_variants
     from trainer.objects import resolve_names
 
@@ -158,9 +158,16 @@ def demo(
     if family_spec != "best":  # an unknown family or variant is reported before the objects
         family_name, _, variant_name = family_spec.partition(":")
         variant = family_variants(family_name, [variant_name or "base"])[variant_name or "base"]
-    names = resolve_names(objects, load_env_config(
-        config_path, given, **({"data_dir": data_dir} if data_dir else {})).data_dir)
-    batches = {family_spec: (variant, names)} if variant is not None else best_variants(names)
+    overrides = {"data_dir": data_dir} if data_dir else {}
+    names = resolve_names(objects, load_env_config(config_path, given, **overrides).data_dir)
+    if variant is not None:
+        batches = {family_spec: (variant, names)}
+    else:
+        # The hand and physics the searched batch runs with (_demo_batch): its grasps' key.
+        hand = load_env_config(config_path, given, **overrides,
+                               **FAMILIES["searched"].variants["base"].env)
+        batches = best_variants(names, searched=[
+            n for n in names if searched.grasp_for(hand, n) is not None])
     for spec, (variant, mine) in batches.items():
         if len(batches) > 1:
             click.echo(f"\n{spec}:")
@@ -337,7 +344,6 @@ def grasp_search(
     if not spread > 0:
         raise TrainerError(f"--spread {spread}: must be > 0")
     given = _sets(sets)
-    import datetime
     import json
 
     import torch
@@ -345,11 +351,11 @@ def grasp_search(
     from geomgrasp.files import atomic_path
     from trainer.grasps import searched
     from trainer.grasps.families import merge_overrides
-    from trainer.grasps.keyframes import PARAMS, top_grasp_theta
-    from trainer.grasps.search import cem
+    from trainer.grasps.keyframes import PARAMS
+    from trainer.grasps.search import PER_HAND, SearchSettings, make_entry, search_grasp
     from trainer.objects import resolve_names
-    from trainer.tasks import make_env
 
+    settings = SearchSettings(population, trials, iterations, elite, seed, spread)
     # The environment part of the config file, as written (read by the one TOML reader), with
     # the --set values in it.
     written = merge_overrides(read_config_toml(config_path), dotted_overrides(given))
@@ -376,22 +382,16 @@ def grasp_search(
         raise TrainerError(f"--refine: {where} has no grasp for {', '.join(missing)}: search "
                            f"it first without --refine")
     for name in names:
-        start = top_grasp_theta()
+        start = None
         if refine:
             start = torch.tensor([data["objects"][name]["theta"][p] for p in PARAMS])
-        env = make_env(dataclasses.replace(cfg, num_envs=population * trials, objects=name),
-                       seed=seed)
         click.echo(f"\n### {name}: {population} candidates x {trials} trials, "
                    f"{iterations} iterations\n")
         click.echo("| iteration | best | mean | lift rate | elite lift rate | s |")
         click.echo("|---:|---:|---:|---:|---:|---:|")
-        try:
-            result = cem(env, start, population, trials, iterations, elite, seed,
-                         spread=spread, on_iteration=lambda r: click.echo(
-                             f"| {r['iteration']} | {r['best']} | {r['mean']} | {r['lift_rate']} "
-                             f"| {r['elite_lift_rate']} | {r['seconds']} |"))
-        finally:
-            env.close()
+        result = search_grasp(cfg, name, settings, start, on_iteration=lambda r: click.echo(
+            f"| {r['iteration']} | {r['best']} | {r['mean']} | {r['lift_rate']} "
+            f"| {r['elite_lift_rate']} | {r['seconds']} |"))
         click.echo(f"\n{name}: best {result.lifted}/{result.final_trials} lifted in its final "
                    f"trials")
         data["config"] = config
@@ -400,20 +400,12 @@ def grasp_search(
             previous = data["objects"][name]
             earlier = [*previous.get("earlier", []),
                        {k: previous[k] for k in ("lifted", "final_trials", "search", "history")}]
-        data["objects"][name] = {
-            "theta": result.as_dict(), "lifted": result.lifted,
-            "final_trials": result.final_trials,
-            "search": {"population": population, "trials": trials, "iterations": iterations,
-                       "elite": elite, "seed": seed, "spread": spread, "refine": refine,
-                       "date": datetime.date.today().isoformat()},
-            "history": result.history,
-            **({"earlier": earlier} if earlier else {}),
-        }
+        entry = make_entry(cfg, result, settings, config, refine, earlier)
         if out is None:
-            written = searched.write_entry(cfg.data_dir, name, key, {
-                **data["objects"][name], "config": config,
-                "hand_and_physics": searched.hand_and_physics(cfg)})
-        else:
+            written = searched.write_entry(cfg.data_dir, name, key, entry)
+            data["objects"][name] = entry
+        else:  # the file's objects share its one config
+            data["objects"][name] = {k: v for k, v in entry.items() if k not in PER_HAND}
             with atomic_path(out) as tmp:
                 tmp.write_text(json.dumps(data, indent=1) + "\n")
             written = out

@@ -15,6 +15,7 @@ of its iteration, with a checkpoint.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from dataclasses import dataclass
@@ -34,7 +35,7 @@ from trainer.models import Agent
 from trainer.objects import resolve_names
 from trainer.randomness import RandomStreams, run_streams
 from trainer.tasks import GraspTask, make_env
-from trainer.tasks.starts import GraspStarts
+from trainer.tasks.starts import DamagedStarts, GraspStarts
 from trainer.training.checkpoint import (
     TrainState,
     copy_agent_parts,
@@ -44,7 +45,11 @@ from trainer.training.checkpoint import (
     write_checkpoint,
 )
 from trainer.training.curriculum import LiftCurriculum
-from trainer.training.grasp_starts import record_grasp_starts
+from trainer.training.grasp_starts import (
+    cached_starts_path,
+    object_grasps,
+    record_grasp_starts,
+)
 from trainer.training.outcomes import EpisodeStats
 from trainer.training.progress import ProgressLog, RunClock
 from trainer.training.run_dir import RunDir
@@ -301,12 +306,37 @@ def build_parts(
 def grasp_starts_of(
     cfg: TrainConfig, run: RunDir, streams: RandomStreams, progress: bool, fresh: bool
 ) -> tuple[GraspStarts, float]:
-    """The run's grasp starts and the seconds spent recording them: recorded once per run
-    (minutes for ten objects, with a progress bar) and saved in the run; a resumed run loads
-    them (recording again from the same streams would give the same states)."""
-    if not fresh and run.grasp_starts.is_file():
-        return GraspStarts.load(run.grasp_starts), 0.0
+    """The run's grasp starts and the seconds spent getting them. A resumed run loads its own
+    (``run.grasp_starts``); a fresh one (or a resumed one whose file is missing or damaged)
+    the data directory's recording of the same key (``cached_starts_path``: the same config,
+    seed and grasps) where there is one, else records them (minutes for ten objects, with a
+    progress bar; searching first the grasps of objects that have none, minutes each) and
+    keeps them in the run and under that key. A damaged file is said in one line and replaced:
+    recording again from the same streams gives the same states."""
     began = time.perf_counter()
+    damaged = ""
+    if not fresh and run.grasp_starts.is_file():
+        try:
+            return _fitting(GraspStarts.load(run.grasp_starts), cfg, run.grasp_starts), 0.0
+        except DamagedStarts as exc:
+            damaged = f"{exc.path} is damaged ({exc.reason}): "
+    # (flushed: a search's line comes minutes before the next)
+    grasps = object_grasps(cfg.env, cfg.run.grasp_start_family,
+                           echo=functools.partial(print, flush=True))
+    cached = cached_starts_path(cfg, grasps)
+    if cached.is_file():
+        try:
+            starts = _fitting(GraspStarts.load(cached), cfg, cached)
+        except DamagedStarts as exc:
+            damaged += f"{exc.path} is damaged ({exc.reason}): "
+        else:
+            print(f"{damaged}grasp starts from {cached} (recorded by an earlier run of this "
+                  f"configuration and seed)", flush=True)
+            starts.save(run.grasp_starts)
+            return starts, time.perf_counter() - began
+    if damaged:
+        print(f"{damaged}recording the grasp starts again; the same streams give the same "
+              f"states", flush=True)
     print(f"recording the grasp starts ({cfg.run.grasp_start_rounds} scripted trials per env of "
           f"{cfg.env.num_envs}; counted in the time budget)", flush=True)
     with tqdm(desc="grasp starts", unit="action", disable=not progress, dynamic_ncols=True,
@@ -319,7 +349,16 @@ def grasp_starts_of(
                                      cfg.run.grasp_start_rounds, phase=cfg.run.grasp_start_phase,
                                      on_progress=advance)
     starts.save(run.grasp_starts)
+    starts.save(cached)
     return starts, time.perf_counter() - began
+
+
+def _fitting(starts: GraspStarts, cfg: TrainConfig, path: Path) -> GraspStarts:
+    """``starts`` read from ``path``, refused as damaged unless they have one row per env."""
+    if starts.valid.shape[0] != cfg.env.num_envs:
+        raise DamagedStarts(path, f"starts of {starts.valid.shape[0]} envs, the run has "
+                                  f"{cfg.env.num_envs}")
+    return starts
 
 
 def iteration_row(

@@ -10,7 +10,7 @@ is a family's parameter scan there.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -199,26 +199,32 @@ BEST = {
     "077_rubiks_cube": "top",
     "029_plate": "pinch:rim",
 }
-"""Each Table I object's best family (``FAMILY:VARIANT``) with the hand ``searched.json`` names
-(issue 33's candidate, the default hand since 2026-11-26: link hulls, damping 0.1, 0.75 N·m,
-all joints driven, no-slip):
+"""The hand-written best family (``FAMILY:VARIANT``) of each object someone tuned: the Table I
+objects, with the hand ``searched.json`` names (issue 33's candidate, the default hand since
+2026-11-26: link hulls, damping 0.1, 0.75 N·m, all joints driven, no-slip):
 results/graspability-drives-2026-11-25/ and results/graspability-search-2026-11-26/ (each
 >= 8 of 10); the plate: results/graspability-plate-rim-2026-11-26/ (every upright plate, no
-upside-down one: 8 of 10 only where 8 of the 10 trials start upright)."""
+upside-down one: 8 of 10 only where 8 of the 10 trials start upright). These override the
+search: any other object's best grasp is its searched one (``best_variants``' ``searched``,
+``search.find_grasps``)."""
 
 
-def best_variants(names: Sequence[str]) -> dict[str, tuple[Variant, list[str]]]:
+def best_variants(
+    names: Sequence[str], searched: Collection[str] = (),
+) -> dict[str, tuple[Variant, list[str]]]:
     """``FAMILY:VARIANT`` -> (its variant with the searched grasps' hand configuration under
-    its own overrides, the ``names`` it is best for); an object without a best family is a
-    one-line error."""
-    missing = [n for n in names if n not in BEST]
+    its own overrides, the ``names`` it is best for): each object's ``BEST`` entry, else the
+    ``searched`` family for the objects named in ``searched`` (those that have a searched
+    grasp); any other object is a one-line error."""
+    missing = [n for n in names if n not in BEST and n not in searched]
     if missing:
-        raise TrainerError(f"no grasp family lifts {', '.join(missing)} yet: choose of "
+        raise TrainerError(f"no grasp family lifts {', '.join(missing)} yet: search one with "
+                           f"`trainer grasp-search --objects {','.join(missing)}`, choose of "
                            f"{', '.join(BEST)}, or name a family")
     hand = FAMILIES["searched"].variants["base"].env  # searched.json's configuration
     out: dict[str, tuple[Variant, list[str]]] = {}
     for name in names:
-        spec = BEST[name]
+        spec = BEST.get(name, "searched")
         if spec not in out:
             family_name, _, variant_name = spec.partition(":")
             variant = variants(family_name, [variant_name or "base"])[variant_name or "base"]

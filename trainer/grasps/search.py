@@ -10,19 +10,30 @@ from one pose scores low), and refits the Gaussian to the ``elite`` best. A tria
 the target is lifted by h_bar and held (the task's success), plus up to 0.5 for its rise at the
 end (partial credit that leads the search toward lifts). The parameters of the best candidates
 are then re-scored on fresh trials; the best of those is the result.
+
+Above the search: ``search_grasp`` runs it for one object of a config, ``make_entry`` turns its
+result into what ``searched.py`` stores, and ``find_grasps`` gives each object of a list its
+grasp for a config's hand and physics, searching and storing the ones nobody has searched
+(``trainer grasp-search`` and the grasp starts of any object, ``trainer.training``).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import datetime
+import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import torch
 
-from trainer.grasps.keyframes import DIM, PARAMS, KeyframeGrasp, index
-from trainer.grasps.runner import record_grasp
-from trainer.tasks import GraspTask
+from trainer.config import EnvConfig
+from trainer.grasps import searched
+from trainer.grasps.keyframes import DIM, PARAMS, KeyframeGrasp, index, top_grasp_theta
+from trainer.grasps.runner import episode_config, record_grasp
+from trainer.tasks import GraspTask, make_env
 
 INITIAL_STD = {
     "x": 0.03, "y": 0.03, "z": 0.02, "yaw": 0.3, "pitch": 0.3, "roll": 0.3,
@@ -118,3 +129,114 @@ def cem(
     counts = [int(lifted[k * each:(k + 1) * each].sum()) for k in range(len(finalists))]
     best = max(range(len(finalists)), key=lambda k: counts[k])
     return SearchResult(finalists[best], counts[best], each, history)
+
+
+@dataclass(frozen=True)
+class SearchSettings:
+    """How hard one object's search looks (``trainer grasp-search``'s options, its defaults
+    here): about 2-3 minutes of one core per object with these."""
+
+    population: int = 24
+    """Candidates per iteration."""
+    trials: int = 4
+    """Randomized trials per candidate (envs: ``population * trials``)."""
+    iterations: int = 6
+    elite: int = 5
+    """The best candidates the Gaussian is refitted to."""
+    seed: int = 0
+    """Seeds the samples and the env's initial states."""
+    spread: float = 1.0
+    """Scales ``INITIAL_STD``."""
+
+    def describe(self) -> str:
+        """The search's size in words, with its cost where it is the default's."""
+        cost = ", about 2-3 minutes of one core" if self == SearchSettings() else ""
+        return (f"{self.population} candidates x {self.trials} trials, {self.iterations} "
+                f"iterations{cost}")
+
+
+def search_grasp(
+    cfg: EnvConfig, name: str, settings: SearchSettings = SearchSettings(),
+    start: torch.Tensor | None = None, on_iteration: Callable[[dict], None] | None = None,
+) -> SearchResult:
+    """The cross-entropy search (``cem``) of a grasp for object ``name`` with the hand and
+    physics of ``cfg``, from ``start`` (D,) (default: the top grasp's parameters), on the lift
+    task with that object alone (``population * trials`` envs, absolute hand actions,
+    episodes as long as the script: ``runner.episode_config``), closed after."""
+    # The lift task whatever cfg's: a bin of one object kind, or its context, would not build,
+    # and the score is the lift task's success; the hand and physics are cfg's.
+    lift = replace(cfg, task="lift", context="none", representation="com",
+                   num_envs=settings.population * settings.trials, objects=name)
+    env = make_env(episode_config(lift, KeyframeGrasp()), seed=settings.seed)
+    try:
+        return cem(env, top_grasp_theta() if start is None else start, settings.population,
+                   settings.trials, settings.iterations, settings.elite, settings.seed,
+                   spread=settings.spread, on_iteration=on_iteration)
+    finally:
+        env.close()
+
+
+PER_HAND = ("config", "hand_and_physics")
+"""What a data-directory entry (one per hand and physics) has beyond a file entry (whose
+objects share the file's one ``config``)."""
+
+
+def make_entry(
+    cfg: EnvConfig, result: SearchResult, settings: SearchSettings, config: dict[str, Any],
+    refine: bool = False, earlier: Sequence[dict[str, Any]] = (),
+) -> dict[str, Any]:
+    """The stored form of ``result`` (``searched.py``): its parameters and lifts, the search's
+    settings and date, its history, the searches it continued (``earlier``, oldest first), the
+    configuration it was searched with as written (``config``: ``load_env_config`` overrides)
+    and ``cfg``'s hand and physics (``searched.hand_and_physics``)."""
+    return {
+        "theta": result.as_dict(), "lifted": result.lifted, "final_trials": result.final_trials,
+        "search": {**dataclasses.asdict(settings), "refine": refine,
+                   "date": datetime.date.today().isoformat()},
+        "history": result.history,
+        **({"earlier": list(earlier)} if earlier else {}),
+        "config": config,
+        "hand_and_physics": searched.hand_and_physics(cfg),
+    }
+
+
+def written_config(cfg: EnvConfig) -> dict[str, Any]:
+    """``cfg``'s settings that differ from the defaults, as a config file would write them
+    (sections as dicts; not the objects, env count or data directory): the ``config`` of an
+    entry searched for a config that is not a file."""
+    default = dataclasses.asdict(EnvConfig(task=cfg.task))
+    out: dict[str, Any] = {}
+    for key, value in dataclasses.asdict(cfg).items():
+        if key in ("objects", "num_envs", "data_dir"):
+            continue
+        if isinstance(value, dict):
+            changed = {k: v for k, v in value.items() if v != default[key][k]}
+            if changed:
+                out[key] = changed
+        elif value != default[key]:
+            out[key] = value
+    return json.loads(json.dumps(out, default=str))
+
+
+def find_grasps(
+    cfg: EnvConfig, names: Sequence[str], settings: SearchSettings = SearchSettings(),
+    echo: Callable[[str], None] = print,
+) -> dict[str, dict[str, Any]]:
+    """Object name -> its grasp for ``cfg``'s hand and physics, for each of ``names``: the data
+    directory's, else the shipped seed's (``searched.grasp_for``), else searched now
+    (``search_grasp`` with ``settings``, ``echo`` saying so before and after) and stored in the
+    data directory (``searched.write_entry``), where every later run, ``trainer demo`` and
+    ``trainer grasp`` find it."""
+    found = {}
+    for name in names:
+        entry = searched.grasp_for(cfg, name)
+        if entry is None:
+            echo(f"no grasp for {name} with this hand and physics: searching "
+                 f"({settings.describe()})")
+            result = search_grasp(cfg, name, settings)
+            entry = make_entry(cfg, result, settings, written_config(cfg))
+            path = searched.write_entry(cfg.data_dir, name, searched.hand_key(cfg), entry)
+            echo(f"{name}: the grasp found lifted {result.lifted} of {result.final_trials} "
+                 f"final trials; stored in {path}")
+        found[name] = entry
+    return found

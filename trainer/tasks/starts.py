@@ -18,6 +18,7 @@ A strategy with random draws keeps its generator and checkpoints it (``state_dic
 
 from __future__ import annotations
 
+import pickle
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +29,7 @@ from tensordict import TensorDict
 
 from geomgrasp.files import atomic_path
 from trainer.config import EnvConfig
+from trainer.errors import TrainerError
 from trainer.init_states import Homes, turned
 from trainer.robots import Robot
 from trainer.sim.backend import SimBackend
@@ -152,6 +154,23 @@ class SettledStart(StartStrategy):
         )
 
 
+class DamagedStarts(TrainerError):
+    """A grasp-starts file (``GraspStarts.save``) that does not read back: cut short, other
+    bytes, parts missing or of other shapes (one line)."""
+
+    def __init__(self, path: Path, reason: str) -> None:
+        super().__init__(f"{path} is damaged ({reason}): delete it, and the run that uses it "
+                         f"records its grasp starts again")
+        self.path, self.reason = path, reason
+
+
+def _first_sentence(exc: Exception) -> str:
+    """An exception as a short phrase for a one-line message: its type and its message's first
+    sentence (torch's unpickling errors run over many lines)."""
+    text = str(exc).strip().split("\n")[0].split(". ")[0]
+    return f"{type(exc).__name__}: {text[:100]}" if text else type(exc).__name__
+
+
 @dataclass(frozen=True)
 class GraspStarts:
     """Scripted-grasp states of E envs, S captures each (S = rounds x captures per round)."""
@@ -181,10 +200,34 @@ class GraspStarts:
 
     @staticmethod
     def load(path: Path) -> GraspStarts:
-        """What ``save`` wrote (on the CPU)."""
-        d = torch.load(path, map_location="cpu", weights_only=True)
-        task = TensorDict(d["task"], batch_size=d["valid"].shape)
-        return GraspStarts(d["qpos"], d["qvel"], task, d["valid"], d["lifted"], d.get("lift"))
+        """What ``save`` wrote (on the CPU); a file that does not read back whole, or whose
+        parts disagree in shape, is a one-line ``DamagedStarts``."""
+        try:
+            d = torch.load(path, map_location="cpu", weights_only=True)
+        # (torch.load: OSError or RuntimeError for a cut zip, UnpicklingError or KeyError for
+        # other bytes; a file that is missing or may not be read is not damaged)
+        except (FileNotFoundError, PermissionError):
+            raise
+        except (OSError, RuntimeError, pickle.UnpicklingError, EOFError, ValueError, KeyError,
+                TypeError, AttributeError, IndexError) as exc:
+            raise DamagedStarts(path, f"unreadable: {_first_sentence(exc)}") from None
+        parts = ("qpos", "qvel", "task", "valid", "lifted")
+        missing = [k for k in parts if not isinstance(d, dict) or k not in d]
+        if missing:
+            raise DamagedStarts(path, f"no {', '.join(missing)}")
+        try:
+            task = TensorDict(d["task"], batch_size=d["valid"].shape)
+            starts = GraspStarts(d["qpos"], d["qvel"], task, d["valid"], d["lifted"],
+                                 d.get("lift"))
+            E, S = starts.valid.shape
+            shapes = [starts.qpos.shape[:2], starts.qvel.shape[:2], starts.lifted.shape[:1],
+                      *([] if starts.lift is None else [starts.lift.shape])]
+            fits = all(tuple(shape) == (E, S)[:len(shape)] for shape in shapes)
+        except (RuntimeError, ValueError, TypeError, AttributeError, IndexError):
+            fits = False
+        if not fits:
+            raise DamagedStarts(path, "parts that do not fit together")
+        return starts
 
     def to(self, device: torch.device) -> GraspStarts:
         return GraspStarts(self.qpos.to(device), self.qvel.to(device), self.task.to(device),

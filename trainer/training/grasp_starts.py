@@ -16,33 +16,95 @@ object's best family (on its target, in the bin); every ``stride`` actions up to
 script's closing the state of each env is kept, and of those only the envs whose trial then
 lifted its object. An env of the training task restarts from one of its own index's states
 (the same object and layout).
+
+Any object: the family "best" runs each object's hand-written best family (``BEST``) where it
+has one, else its searched grasp for the run's hand and physics (``search.find_grasps``: the
+data directory's or the shipped one, else searched now, a few minutes per object, and stored
+for every later run). What a recording depends on is summed up in a key (``starts_key``); the
+starts of a key are kept in the data directory (``cached_starts_path``), so that a run with
+the same configuration and seed loads them instead of recording them again (``ppo``).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+import json
 from collections.abc import Callable
+from pathlib import Path
+from typing import Any
 
 import torch
 from tensordict import TensorDict
 
-from trainer.config import EnvConfig
-from trainer.errors import TrainerError
+from trainer.config import EnvConfig, TrainConfig
 from trainer.grasps.families import BEST, best_variants, variants
 from trainer.grasps.keyframes import KeyframeGrasp
 from trainer.grasps.runner import episode_config, run_scripted_grasp
+from trainer.grasps.search import SearchSettings, find_grasps
 from trainer.objects import resolve_names
 from trainer.randomness import RandomStreams
 from trainer.tasks import make_env
 from trainer.tasks.starts import TASK_STATE_KEYS, GraspStarts
 
+STARTS_FORMAT = 1
+"""The version of what the recorder does; raised when a change to it changes the states it
+records from the same inputs, so that no cached recording of the older code is loaded."""
+STARTS_STORE = Path("grasps") / "starts"
+"""The folder of the cached recordings in a data directory (one ``<key>.pt`` per key)."""
+STRIDE = 10
+"""Actions between two kept states of a scripted grasp."""
+
+
+def object_grasps(
+    cfg: EnvConfig, family_name: str = "best", search: SearchSettings | None = None,
+    echo: Callable[[str], None] = print,
+) -> dict[str, dict[str, Any]]:
+    """Object name -> the grasp the recorder runs on it with ``family_name`` (``family``:
+    ``FAMILY[:VARIANT]``, with "best" each object's ``BEST`` entry, else "searched"), for every
+    object of ``cfg``; a searched grasp's ``theta`` too (the parameters the family runs for
+    ``cfg``'s hand and physics), found or searched now and stored (``find_grasps`` with
+    ``search``, default ``SearchSettings()``; ``echo`` says what it searches)."""
+    names = resolve_names(cfg.objects, cfg.data_dir)
+    specs = {n: BEST.get(n, "searched") if family_name == "best" else family_name
+             for n in names}
+    keyframed = [n for n, spec in specs.items() if spec.partition(":")[0] == "searched"]
+    found = find_grasps(cfg, keyframed, search or SearchSettings(), echo)
+    return {n: {"family": spec, **({"theta": found[n]["theta"]} if n in found else {})}
+            for n, spec in specs.items()}
+
+
+def starts_key(cfg: TrainConfig, grasps: dict[str, dict[str, Any]]) -> str:
+    """A short hash of what a run's recorded grasp starts depend on: the recorder's version,
+    the env config (not where its data directory is), the run's seed and streams, the
+    ``grasp_start_*`` settings and each object's grasp (``object_grasps``)."""
+    env = {k: v for k, v in dataclasses.asdict(cfg.env).items() if k != "data_dir"}
+    payload = {
+        "format": STARTS_FORMAT, "stride": STRIDE, "env": env, "seed": cfg.run.seed,
+        "random_streams": cfg.run.random_streams, "family": cfg.run.grasp_start_family,
+        "rounds": cfg.run.grasp_start_rounds, "phase": cfg.run.grasp_start_phase,
+        "grasps": grasps,
+    }
+    text = json.dumps(payload, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def cached_starts_path(cfg: TrainConfig, grasps: dict[str, dict[str, Any]]) -> Path:
+    """``DATA_DIR/grasps/starts/<starts_key>.pt``: where the starts of a run of ``cfg`` whose
+    objects get ``grasps`` are kept for the next run of the same key."""
+    return Path(cfg.env.data_dir) / STARTS_STORE / f"{starts_key(cfg, grasps)}.pt"
+
 
 def record_grasp_starts(
     cfg: EnvConfig, streams: RandomStreams, family_name: str = "best", rounds: int = 2,
-    stride: int = 10, phase: str = "approach",
+    stride: int = STRIDE, phase: str = "approach",
     on_progress: Callable[[int, int], None] | None = None,
+    search: SearchSettings | None = None, echo: Callable[[str], None] = print,
 ) -> GraspStarts:
-    """Run each object's best scripted grasp (``family_name`` "best": ``BEST``; or one
-    ``FAMILY[:VARIANT]`` for every object) ``rounds`` times on every env of the task built
+    """Run each object's best scripted grasp (``family_name`` "best": its ``BEST`` family, or
+    for an object without one its searched grasp, searched now with ``search`` where nobody
+    has (``object_grasps``, ``echo`` saying so); or one ``FAMILY[:VARIANT]`` for every
+    object) ``rounds`` times on every env of the task built
     from ``cfg`` (``max_steps`` raised for the script; its resets drawn from the
     ``grasp_starts`` stream of ``streams``; in the bin the script grasps each episode's target
     in its clutter, and a start restores every object of the bin and the target slot) and keep
@@ -54,14 +116,10 @@ def record_grasp_starts(
     not applied. ``on_progress(done, total)`` is called after every scripted action with the
     actions run so far and in all."""
     names = resolve_names(cfg.objects, cfg.data_dir)
+    grasps = object_grasps(cfg, family_name, search, echo)
     if family_name == "best":
-        missing = [n for n in names if n not in BEST]
-        if missing:
-            raise TrainerError(
-                f"[run] grasp_starts: no scripted grasp lifts {', '.join(missing)} yet (each of "
-                f"the ten Table I objects has one): set grasp_starts = 0 (configs/cpu.toml), or "
-                f"name one family for every object with [run] grasp_start_family")
-        families = [(v.script, objs) for v, objs in best_variants(names).values()]
+        families = [(v.script, objs) for v, objs in best_variants(
+            names, searched=[n for n in names if "theta" in grasps[n]]).values()]
     else:
         name, _, variant_name = family_name.partition(":")
         variant = variants(name, [variant_name or "base"])[variant_name or "base"]
