@@ -155,19 +155,25 @@ class SearchSettings:
                 f"iterations{cost}")
 
 
+def search_config(cfg: EnvConfig, name: str, settings: SearchSettings) -> EnvConfig:
+    """The env a search for object ``name`` runs on: ``cfg``'s hand, physics and reward on the
+    lift task with that object alone, ``population * trials`` envs, absolute hand actions and
+    episodes as long as the script (``runner.episode_config``)."""
+    # The lift task whatever cfg's: a bin of one object kind, or its context, would not build,
+    # and the score is the lift task's success.
+    lift = replace(cfg, task="lift", context="none", representation="com",
+                   num_envs=settings.population * settings.trials, objects=name)
+    return episode_config(lift, KeyframeGrasp())
+
+
 def search_grasp(
     cfg: EnvConfig, name: str, settings: SearchSettings = SearchSettings(),
     start: torch.Tensor | None = None, on_iteration: Callable[[dict], None] | None = None,
 ) -> SearchResult:
     """The cross-entropy search (``cem``) of a grasp for object ``name`` with the hand and
-    physics of ``cfg``, from ``start`` (D,) (default: the top grasp's parameters), on the lift
-    task with that object alone (``population * trials`` envs, absolute hand actions,
-    episodes as long as the script: ``runner.episode_config``), closed after."""
-    # The lift task whatever cfg's: a bin of one object kind, or its context, would not build,
-    # and the score is the lift task's success; the hand and physics are cfg's.
-    lift = replace(cfg, task="lift", context="none", representation="com",
-                   num_envs=settings.population * settings.trials, objects=name)
-    env = make_env(episode_config(lift, KeyframeGrasp()), seed=settings.seed)
+    physics of ``cfg``, from ``start`` (D,) (default: the top grasp's parameters), on the env
+    of ``search_config``, closed after."""
+    env = make_env(search_config(cfg, name, settings), seed=settings.seed)
     try:
         return cem(env, top_grasp_theta() if start is None else start, settings.population,
                    settings.trials, settings.iterations, settings.elite, settings.seed,
@@ -234,7 +240,8 @@ def find_grasps(
             echo(f"no grasp for {name} with this hand and physics: searching "
                  f"({settings.describe()})")
             result = search_grasp(cfg, name, settings)
-            entry = make_entry(cfg, result, settings, written_config(cfg))
+            config = written_config(search_config(cfg, name, settings))
+            entry = make_entry(cfg, result, settings, config)
             path = searched.write_entry(cfg.data_dir, name, searched.hand_key(cfg), entry)
             echo(f"{name}: the grasp found lifted {result.lifted} of {result.final_trials} "
                  f"final trials; stored in {path}")
