@@ -4,7 +4,8 @@
 # from its committed folder (results/cpu-comparison-2026-11-29/runs/cmp-ARM) or starts, trains
 # until its time budget in all reaches MINUTES of training (or its 4.6 M env steps), then copies
 # what the next chunk needs back into results/ (config.json, metrics.csv, grasp_starts.pt,
-# checkpoints/last.pt). An arm may end in a named variant of the network, an arm of its own:
+# checkpoints/last.pt) and, once the arm reached its budget, evaluates it (50 episodes per
+# object, eval/ kept beside). An arm may end in a named variant of the network, an arm of its own:
 # -shared ([ppo] shared_encoder = true: one encoder for the policy and the value), e.g.
 # pc512-sdf-s0-shared. Arms run one after the other; start two of these for the two cores:
 #
@@ -43,5 +44,13 @@ for ARM in "$@"; do
     cp "$RUN/config.json" "$RUN/metrics.csv" "$RUN/grasp_starts.pt" "$SAVED/" 2>/dev/null
     cp "$RUN/checkpoints/last.pt" "$SAVED/checkpoints/last.pt"
     echo "== $ARM: saved to $SAVED ($(tail -1 "$RUN/metrics.csv" | cut -d, -f2) env steps)"
+  fi
+  # At the budget: the evaluation (50 episodes per object from home), once, kept beside.
+  if [ -f "$RUN/checkpoints/last.pt" ] && [ ! -f "$SAVED/eval/per_object.csv" ] && python -c "
+import csv, json, sys
+rows = list(csv.DictReader(open('$RUN/metrics.csv')))
+total = json.load(open('$RUN/config.json'))['run']['total_steps']
+sys.exit(0 if rows and int(rows[-1]['env_steps']) >= total else 1)"; then
+    trainer eval "$RUN" --episodes-per-object 50 && cp -r "$RUN/eval" "$SAVED/"
   fi
 done
