@@ -453,7 +453,7 @@ class PPOConfig(_Checked):
     shared_encoder: bool = False
     """Ours: one object (and context) encoder for the policy and the value, run once per
     minibatch, trained by both losses (the authors' public code shares its whole network);
-    halves a point cloud's encoder cost (bench/pointnet_update.py, results/config-evidence.md)."""
+    halves a point cloud's encoder cost (results/bench-pointnet-2026-11-29/)."""
     context_hidden: tuple[int, ...] = bounded((64, 64), ge=1)
     """Shared per-object MLP of the context encoder (bin task with context; then a masked max)."""
     stagger_episodes: bool = False
