@@ -20,7 +20,7 @@ from pathlib import Path
 def rows_of(run_dir: Path) -> tuple[list[str], list[dict[str, float]]]:
     """(object names, one row per kept checkpoint, oldest first)."""
     from trainer.errors import TrainerError
-    from trainer.objects import resolve_names
+    from trainer.objects import task_names
     from trainer.training.checkpoint import read_checkpoint
     from trainer.training.run_dir import RunDir
 
@@ -29,7 +29,7 @@ def rows_of(run_dir: Path) -> tuple[list[str], list[dict[str, float]]]:
     if not cfg.env.reward.curriculum_per_object:
         raise TrainerError(f"{run_dir}: not a per-object curriculum run "
                            "([reward] curriculum_per_object = false): see trainer report")
-    names = resolve_names(cfg.env.objects, cfg.env.data_dir)
+    names = task_names(cfg.env)
     steps: dict[int, tuple[float, float]] = {}
     with open(run.metrics, newline="") as handle:
         for row in csv.DictReader(handle):

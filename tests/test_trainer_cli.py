@@ -416,3 +416,45 @@ def test_a_trainer_warning_is_one_line_and_others_keep_their_source() -> None:
     other = trainer.cli.format_warning(DeprecationWarning("old"), DeprecationWarning,
                                        "/somewhere/lib.py", 7)
     assert "/somewhere/lib.py:7" in other and "DeprecationWarning" in other
+
+
+def test_held_out_objects_are_never_trained_on_and_evaluated_apart(
+    builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # held_out: the run's envs hold only the other objects; `trainer eval --held-out` runs the
+    # held-out ones alone (eval-held-out/), the plain eval the trained ones.
+    from tests.tiny_runs import tiny_run, trainer_main
+    from trainer.session import EvalSession
+
+    run = tiny_run(builtin_data, tmp_path / "run", "builtin_cylinder,builtin_box,builtin_sphere",
+                   held_out="builtin_box")
+    session = EvalSession.load(run.path, policy=False)
+    assert session.names() == ["builtin_cylinder", "builtin_sphere"]
+    assert session.env(4, seed=0, quiet=True).objects.names == ["builtin_cylinder",
+                                                               "builtin_sphere"]
+    code, out, err = trainer_main(["eval", str(run.path), "--held-out",
+                                   "--episodes-per-object", "2"], monkeypatch, capsys)
+    assert code == 0, err
+    rows = (run.path / "eval-held-out" / "per_object.csv").read_text().splitlines()
+    assert [r.split(",")[0] for r in rows[1:]] == ["builtin_box"]
+    code, out, err = trainer_main(["eval", str(run.path), "--episodes-per-object", "2"],
+                                  monkeypatch, capsys)
+    assert code == 0, err
+    rows = (run.path / "eval" / "per_object.csv").read_text().splitlines()
+    assert [r.split(",")[0] for r in rows[1:]] == ["builtin_cylinder", "builtin_sphere"]
+    # What cannot be meant is one line each.
+    code, _, err = trainer_main(["eval", str(run.path), "--held-out", "--objects", "builtin_box"],
+                                monkeypatch, capsys)
+    assert code != 0 and "--held-out and --objects: pass one" in err
+    other = tiny_run(builtin_data, tmp_path / "other", "builtin_cylinder")
+    code, _, err = trainer_main(["eval", str(other.path), "--held-out"], monkeypatch, capsys)
+    assert code != 0 and "holds out no objects" in err and len(err.strip().splitlines()) == 1
+    for held, message in (("builtin_mug", "not among objects"),
+                          ("builtin_cylinder,builtin_box", "holds out every object")):
+        code, _, err = trainer_main(["run", "--objects", "builtin_cylinder,builtin_box",
+                                     "--set", f"held_out={held}", "--steps", "32",
+                                     "--data-dir", str(builtin_data.data_dir),
+                                     "--run-dir", str(tmp_path / f"bad-{held}")],
+                                    monkeypatch, capsys)
+        assert code != 0 and message in err and len(err.strip().splitlines()) == 1

@@ -553,6 +553,9 @@ def _resume(run_dir: Path, steps: int | None, minutes: float | None) -> None:
               help="Episodes with each object as the target (bin: at least that many).")
 @click.option("--objects", default=None, help="Evaluate on these objects instead (bin: the "
               "bins are drawn from them).")
+@click.option("--held-out", is_flag=True,
+              help="Evaluate on the objects the run held out (its config's held_out), which it "
+              "never trained on [out: eval-held-out].")
 @click.option("--max-rounds", default=20, show_default=True,
               help="Bin task: rounds of episodes at most, however few an object has.")
 @click.option("--hold-tips", type=int, default=None,
@@ -576,8 +579,8 @@ def _resume(run_dir: Path, steps: int | None, minutes: float | None) -> None:
               "[eval; with --sample: eval-sampled].")
 @click.option("--device", default=None, help="Torch device [the run's].")
 def eval_cmd(
-    run_dir: Path, episodes_per_object: int, objects: str | None, max_rounds: int,
-    hold_tips: int | None, h_bar: float | None, lift_clearance: float | None,
+    run_dir: Path, episodes_per_object: int, objects: str | None, held_out: bool,
+    max_rounds: int, hold_tips: int | None, h_bar: float | None, lift_clearance: float | None,
     iteration: int | None, sample: bool, pads: bool, out: str | None, device: str | None,
 ) -> None:
     """Success per target object of the deterministic policy (eval/per_object.csv,
@@ -594,6 +597,17 @@ def eval_cmd(
 
     if iteration is not None:
         _at_least("--iteration", iteration, 1)
+    if held_out:
+        from trainer.training.run_dir import RunDir
+
+        if objects is not None:
+            raise TrainerError("--held-out and --objects: pass one (--held-out evaluates the "
+                               "run's held-out objects)")
+        objects = RunDir(_run_dir(run_dir)).load_config().env.held_out
+        if not objects:
+            raise TrainerError(f"{run_dir} holds out no objects (its config's held_out is "
+                               "empty): evaluate other objects with --objects NAMES")
+        out = out or "eval-held-out"
     result = evaluate(
         _run_dir(run_dir), episodes_per_object, objects, device=device, max_rounds=max_rounds,
         hold_tips=hold_tips, h_bar=h_bar, iteration=iteration, out=out, sample=sample,

@@ -368,6 +368,10 @@ class EnvConfig(_Checked):
     Warp; ``pip install -e ".[gpu]"``)."""
     objects: str = bounded("builtin", paper="ycb (the 78 YCB objects)")
     """Object set: ``builtin``, ``ycb``, ``all``, or a comma list of names."""
+    held_out: str = ""
+    """Ours: objects of ``objects`` (names or a set) that the task never holds: a run trains on
+    the rest, ``trainer eval RUN --held-out`` evaluates it on these (generalization to unseen
+    objects)."""
     max_steps: int = bounded(300, ge=1, paper="300")
     """Actions per episode at most (an episode also ends on success or a fall)."""
     fall_height: float = -0.05

@@ -64,6 +64,24 @@ def resolve_names(spec: str, data_dir: Path) -> list[str]:
     return names
 
 
+def task_names(cfg: EnvConfig) -> list[str]:
+    """The objects a task of ``cfg`` holds: ``objects`` less ``held_out``. A held-out name not
+    among ``objects``, or nothing left to train on, is a one-line error."""
+    names = resolve_names(cfg.objects, cfg.data_dir)
+    if not cfg.held_out:
+        return names
+    held = resolve_names(cfg.held_out, cfg.data_dir)
+    stray = [n for n in held if n not in names]
+    if stray:
+        raise TrainerError(f"held_out names {', '.join(stray)}, not among objects "
+                           f"({cfg.objects!r}): hold out objects of the set")
+    left = [n for n in names if n not in held]
+    if not left:
+        raise TrainerError(f"held_out holds out every object of {cfg.objects!r}: leave some to "
+                           "train on")
+    return left
+
+
 def task_objects(cfg: EnvConfig, names: list[str], device: torch.device) -> ObjectSet:
     """The objects ``names`` as a task of ``cfg`` needs them: with their SDF grids (in
     ``cfg.sdf_dtype``) where the representation, the reward's fingertip distances or the hold

@@ -43,7 +43,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from trainer.config import EnvConfig, RewardConfig, TrainConfig
 from trainer.errors import TrainerError
 from trainer.models import Agent
-from trainer.objects import resolve_names
+from trainer.objects import resolve_names, task_names
 from trainer.randomness import RandomStreams, run_streams
 from trainer.tasks import GraspTask, make_env
 from trainer.training.checkpoint import load_agent
@@ -204,8 +204,10 @@ class EvalSession:
 
     def names(self, objects: str | None = None) -> list[str]:
         """The object names of ``objects`` (names or a set, as ``--objects`` takes them), or
-        of the run's object set."""
-        return resolve_names(objects or self.cfg.env.objects, self.cfg.env.data_dir)
+        the run's own (its object set less its held-out objects)."""
+        if objects:
+            return resolve_names(objects, self.cfg.env.data_dir)
+        return task_names(self.cfg.env)
 
     def streams(self, seed: int) -> RandomStreams:
         """The random streams of ``seed`` as the run derives them (``[run] random_streams``)."""
@@ -214,9 +216,11 @@ class EvalSession:
     def env_config(self, num_envs: int, objects: Sequence[str] | None = None,
                    **changes: object) -> EnvConfig:
         """The run's env config with ``num_envs`` envs, on ``objects`` when given, and
-        ``changes`` (``EnvConfig`` fields, e.g. ``compile=False``)."""
+        ``changes`` (``EnvConfig`` fields, e.g. ``compile=False``); on ``objects`` nothing is
+        held out (they may be the run's held-out objects)."""
         if objects is not None:
             changes["objects"] = ",".join(objects)
+            changes.setdefault("held_out", "")
         return dataclasses.replace(self.cfg.env, num_envs=num_envs, **changes)
 
     def env(self, num_envs: int, seed: int | RandomStreams,

@@ -43,7 +43,7 @@ from trainer.config import EnvConfig
 from trainer.errors import TrainerError
 from trainer.init_states import layout_banks, robot_homes, warn_home_contact
 from trainer.kinematics import SiteKinematics
-from trainer.objects import ObjectSet, resolve_names, task_objects
+from trainer.objects import ObjectSet, task_names, task_objects
 from trainer.randomness import RandomStreams
 from trainer.robots import Robot, make_robot
 from trainer.sim import make_backend
@@ -75,7 +75,7 @@ class GraspTask(EnvBase):
         super().__init__(device=torch.device(cfg.device), batch_size=torch.Size([cfg.num_envs]))
         self.cfg = cfg
         E = cfg.num_envs
-        names = resolve_names(cfg.objects, cfg.data_dir)
+        names = task_names(cfg)
         self.objects: ObjectSet = task_objects(cfg, names, self.device)
         # One source of randomness (trainer.randomness): the layouts and the episodes' resets
         # draw from their own streams of the run's seed.

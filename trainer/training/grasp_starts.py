@@ -42,7 +42,7 @@ from trainer.grasps.families import BEST, best_variants, variants
 from trainer.grasps.keyframes import KeyframeGrasp
 from trainer.grasps.runner import episode_config, run_scripted_grasp
 from trainer.grasps.search import SearchSettings, find_grasps
-from trainer.objects import resolve_names
+from trainer.objects import task_names
 from trainer.randomness import RandomStreams
 from trainer.tasks import make_env
 from trainer.tasks.starts import TASK_STATE_KEYS, GraspStarts
@@ -65,7 +65,7 @@ def object_grasps(
     object of ``cfg``; a searched grasp's ``theta`` too (the parameters the family runs for
     ``cfg``'s hand and physics), found or searched now and stored (``find_grasps`` with
     ``search``, default ``SearchSettings()``; ``echo`` says what it searches)."""
-    names = resolve_names(cfg.objects, cfg.data_dir)
+    names = task_names(cfg)
     specs = {n: BEST.get(n, "searched") if family_name == "best" else family_name
              for n in names}
     keyframed = [n for n, spec in specs.items() if spec.partition(":")[0] == "searched"]
@@ -115,7 +115,7 @@ def record_grasp_starts(
     ``robot.hand_action``): a family's own ``load_env_config`` overrides (``Variant.env``) are
     not applied. ``on_progress(done, total)`` is called after every scripted action with the
     actions run so far and in all."""
-    names = resolve_names(cfg.objects, cfg.data_dir)
+    names = task_names(cfg)
     grasps = object_grasps(cfg, family_name, search, echo)
     if family_name == "best":
         families = [(v.script, objs) for v, objs in best_variants(
