@@ -476,7 +476,13 @@ def run(args: argparse.Namespace) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    """The command line: ``error: <message>`` and exit status 1 on bad input."""
+    """The command line: ``error: <message>`` and exit status 1 on bad input; a
+    ``TrainerWarning`` one ``warning:`` line, as ``trainer`` prints it."""
+    import warnings
+
+    from trainer.cli import format_warning
+
+    warnings.formatwarning = format_warning
     try:
         run(parse_args(argv))
     except UserError as exc:
