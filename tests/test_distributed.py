@@ -21,6 +21,7 @@ from tensordict import TensorDict
 
 from geomprep.config import Config
 from trainer.config import load_train_config
+from trainer.errors import TrainerError
 from trainer.models import Agent
 from trainer.ppo import PPOUpdate, train
 from trainer.randomness import RandomStreams
@@ -113,6 +114,8 @@ def test_per_rank_streams_and_env_slices(builtin_data: Config) -> None:
         halves += env.target_objects().tolist()
         env.close()
     assert halves == whole and len(set(whole)) == 3
+    with pytest.raises(TrainerError, match="num_envs 6 does not divide among 4 processes"):
+        distributed.local_envs(6, 4)
 
 
 def _tiny_toml(path: Path, data_dir: Path) -> Path:

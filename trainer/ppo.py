@@ -112,7 +112,9 @@ def train(
     merge = _merge_episodes if world.distributed else None
     clock = RunClock(state.wall_time_s, state.iteration * frames)
     stop = StopSignals(again_stops=not world.distributed)
-    resume_target = Path(resume_as) if resume_as is not None else run.path
+    resume_target: Path | str = Path(resume_as) if resume_as is not None else run.path
+    if world.distributed:
+        resume_target = f"{resume_target} (under torchrun, {world.size} processes)"
     try:
         with stop:
             for data in collector:
@@ -318,7 +320,8 @@ def build_parts(
     torch.set_num_threads(cfg.run.torch_threads)
     streams = run_streams(cfg, world.rank)
     streams.seed_global_torch("actions")
-    env_cfg = dataclasses.replace(cfg.env, device=distributed.device_of(cfg.env.device, world))
+    env_cfg = dataclasses.replace(cfg.env, device=distributed.device_of(cfg.env.device, world),
+                                  nthread=distributed.threads_of(cfg.env.nthread, world))
     # The env first: a config it refuses (a bin larger than the object set, a missing object)
     # leaves no run directory behind that a corrected rerun would have to --overwrite.
     env = make_env(env_cfg, seed=streams, shard=(world.rank, world.size))

@@ -94,6 +94,16 @@ def device_of(device: str, w: World) -> str:
     return device
 
 
+def threads_of(nthread: int, w: World) -> int:
+    """Simulation threads of ``w``'s process for a run of ``nthread`` (0: all cores): a
+    distributed run's "all cores" is this machine's cores shared by its processes
+    (``LOCAL_WORLD_SIZE``), not every core for each."""
+    if nthread or not w.distributed:
+        return nthread
+    local = int(os.environ.get("LOCAL_WORLD_SIZE", str(w.size)))
+    return max(1, (os.cpu_count() or 1) // max(local, 1))
+
+
 def timeout_s() -> float:
     """The process group's timeout (s): ``TIMEOUT_ENV`` or ``DEFAULT_TIMEOUT_S``."""
     value = os.environ.get(TIMEOUT_ENV, "")
