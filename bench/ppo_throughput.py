@@ -20,12 +20,23 @@ first collected batch (Warp's kernels, torch.compile, the CUDA graph), the physi
 
     python bench/ppo_throughput.py --backend warp --device cuda [--num-envs 1024,4096,16384]
                                    [--repr com,sdf] [--iterations 5]
+
+With ``--processes P`` it compares instead one run in one process with P simulation threads
+(``nthread = P``) against the same run spread over P processes of one thread each
+(``torchrun --standalone --nproc_per_node P trainer run``, started as a subprocess; its frames
+/s read from the run's metrics.csv), both training env steps/s and their ratio (P processes
+over one); each skips its first iteration. Give each process a core of its own (P <= cores).
+
+    python bench/ppo_throughput.py --processes 2 [--envs 256] [--repr com] [--iterations 5]
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import os
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -99,8 +110,14 @@ def main(argv: list[str] | None = None) -> None:
         "--compile", action=argparse.BooleanOptionalAction, default=True,
         help="torch.compile the env's task computations (trainer run --compile)",
     )
+    parser.add_argument("--processes", type=int, default=0, metavar="P",
+                        help="compare one process of P simulation threads with P processes of "
+                        "one thread (torchrun) on the same run instead")
     args = parser.parse_args(argv)
     try:
+        if args.processes:
+            process_rows(args)
+            return
         run_rows(args, parser)
     except TrainerError as exc:
         parser.exit(2, f"error: {exc}\n")
@@ -167,6 +184,84 @@ def run_rows(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
               "alone, same env; build and 1st batch (Warp's kernels, torch.compile, the CUDA "
               f"graph) are not in the rates; paper: {PAPER_STEPS_PER_S:,} env steps/s (COM, "
               "PPO, RTX A6000). Issue target on one H100: >= 150,000 with PPO at 16,384 envs.")
+
+
+def train_rate(metrics: Path, frames: int) -> float:
+    """Training env steps/s of the run whose ``metrics.csv`` is ``metrics`` (``frames`` env
+    steps per iteration), its first iteration (set-up, first collector reset) left out."""
+    rows = list(csv.DictReader(metrics.read_text().splitlines()))
+    if len(rows) < 2:
+        raise TrainerError(f"{metrics}: {len(rows)} iteration(s), 2 at least are needed")
+    seconds = float(rows[-1]["wall_time_s"]) - float(rows[0]["wall_time_s"])
+    return (len(rows) - 1) * frames / seconds
+
+
+def process_rows(args: argparse.Namespace) -> None:
+    """``--processes P``: per env count and representation, one process of P simulation
+    threads against P processes of one (torchrun), same run settings."""
+    procs = args.processes
+    if procs < 1:
+        raise TrainerError(f"--processes {procs}: must be at least 1")
+    sets = parse_sets(args.sets, training=True)
+    envs, reps = args.envs or "256", args.repr or "com"
+    objects = args.objects or "builtin"
+    print(f"{'task':>5} {'envs':>6} {'repr':>6} {f'1 proc x {procs} thr':>15} "
+          f"{f'{procs} proc x 1 thr':>15} {'ratio':>6}")
+    for n in (int(v) for v in envs.split(",")):
+        for rep in reps.split(","):
+            env = {"task": args.task, "num_envs": n, "objects": objects,
+                   "compile": args.compile, "backend": args.backend, "device": args.device}
+            if args.data_dir:
+                env["data_dir"] = Path(args.data_dir)
+            if rep != "default":
+                env["representation"] = rep
+            if args.task == "bin":
+                env["bin"] = {"num_objects": args.bin_objects}
+            frames = iteration_frames(load_train_config(env=env, sets=sets))
+            steps = frames * (args.iterations + 1)
+            run = {"total_steps": steps, "checkpoint_every": 10**9}
+            one_cfg = load_train_config(env={**env, "nthread": procs}, sets=sets, run=run)
+            with tempfile.TemporaryDirectory() as tmp:
+                one = train_rate(train(one_cfg, Path(tmp) / "one", progress=False).metrics,
+                                 frames)
+                many = train_rate(torchrun_run(args, env, procs, steps, Path(tmp) / "many"),
+                                  frames)
+            print(f"{args.task:>5} {n:>6} {one_cfg.env.representation:>6} {one:>15.0f} "
+                  f"{many:>15.0f} {many / one:>6.2f}")
+    print(f"ratio: training env steps/s of {procs} processes of one simulation thread over one "
+          f"process of {procs} threads, the same run")
+
+
+def torchrun_run(
+    args: argparse.Namespace, env: dict, procs: int, steps: int, run_dir: Path
+) -> Path:
+    """Train the run of ``env`` (this bench's options) for ``steps`` env steps as ``procs``
+    processes of one simulation thread (``torchrun --standalone``, a subprocess) in
+    ``run_dir``; its metrics.csv."""
+    command = [
+        sys.executable, "-m", "torch.distributed.run", "--standalone",
+        f"--nproc_per_node={procs}", "-m", "trainer.cli", "run", "--run-dir", str(run_dir),
+        "--task", env["task"], "--num-envs", str(env["num_envs"]), "--objects", env["objects"],
+        "--backend", args.backend, "--device", args.device, "--steps", str(steps),
+        "--compile" if args.compile else "--no-compile",
+        "--set", "nthread=1", "--set", f"run.checkpoint_every={10**9}",
+    ]
+    if "representation" in env:
+        command += ["--repr", env["representation"]]
+    if args.data_dir:
+        command += ["--data-dir", str(args.data_dir)]
+    if args.task == "bin":
+        command += ["--bin-objects", str(args.bin_objects)]
+    for value in args.sets:
+        command += ["--set", value]
+    root = str(Path(__file__).resolve().parents[1])
+    path = os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH", "")) if p)
+    done = subprocess.run(command, capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": path, "OMP_NUM_THREADS": "1"})
+    if done.returncode != 0:
+        last = (done.stderr.strip().splitlines() or ["(no output)"])[-1]
+        raise TrainerError(f"torchrun with {procs} processes failed: {last}")
+    return run_dir / "metrics.csv"
 
 
 if __name__ == "__main__":

@@ -84,6 +84,23 @@ def test_ppo_throughput(builtin_data: Config, monkeypatch: pytest.MonkeyPatch,
     assert float(ratio) == pytest.approx(float(train_rate) / float(env_rate), abs=0.01)
 
 
+@pytest.mark.slow
+def test_ppo_throughput_processes(builtin_data: Config, monkeypatch: pytest.MonkeyPatch,
+                                  capsys: pytest.CaptureFixture[str]) -> None:
+    # One process of two simulation threads against two processes of one (torchrun).
+    monkeypatch.syspath_prepend(str(ROOT / "bench"))
+    lines = run_bench("ppo_throughput", ["--processes", "2", "--envs", "4", "--repr", "com",
+                                         "--iterations", "1", "--no-compile", "--objects",
+                                         "builtin_box", "--data-dir",
+                                         str(builtin_data.data_dir)], capsys)
+    assert lines[0].split()[-1] == "ratio"
+    task, envs, rep, one, two, ratio = lines[1].split()
+    assert (task, envs, rep) == ("lift", "4", "com")
+    assert float(one) > 0 and float(two) > 0
+    assert float(ratio) == pytest.approx(float(two) / float(one), abs=0.01)
+    assert lines[-1].startswith("ratio: training env steps/s of 2 processes")
+
+
 def test_pointnet_update(capsys: pytest.CaptureFixture[str]) -> None:
     lines = run_bench("pointnet_update", ["--repr", "pc32", "--envs", "4", "--repeats", "1",
                                           "--set", "ppo.pointnet_hidden=[8,16]"], capsys)

@@ -11,6 +11,7 @@ import os
 # MuJoCo picks its OpenGL backend at import: EGL renders offscreen without a display.
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+import contextlib  # noqa: E402
 import dataclasses  # noqa: E402
 import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -37,6 +38,8 @@ from trainer.config import (  # noqa: E402
 from trainer.errors import TrainerError, TrainerWarning  # noqa: E402
 
 if TYPE_CHECKING:
+    from collections.abc import Iterator
+
     from trainer.grasps import Variant
 
 DEMO_OBJECTS = "077_rubiks_cube,013_apple,005_tomato_soup_can"
@@ -524,8 +527,29 @@ def run(
 
     from trainer.ppo import train_run
 
-    click.echo(f"run: {run_dir}")
-    train_run(cfg, run_dir, overwrite=overwrite)
+    _echo_once(f"run: {run_dir}")
+    with _process_group():
+        train_run(cfg, run_dir, overwrite=overwrite)
+
+
+def _echo_once(line: str) -> None:
+    """``line`` on stdout, once per run: by rank 0 of a run spread over processes (torchrun
+    sets ``RANK``)."""
+    if os.environ.get("RANK", "0") == "0":
+        click.echo(line)
+
+
+@contextlib.contextmanager
+def _process_group() -> Iterator[None]:
+    """Leave the process group a distributed run joined (``trainer.training.distributed``),
+    however it ends."""
+    try:
+        yield
+    finally:
+        if "WORLD_SIZE" in os.environ:
+            from trainer.training import distributed
+
+            distributed.shutdown()
 
 
 def _resume(run_dir: Path, steps: int | None, minutes: float | None) -> None:
@@ -543,8 +567,9 @@ def _resume(run_dir: Path, steps: int | None, minutes: float | None) -> None:
         said.append(f"time budget {minutes:g} min, was {cfg.run.max_minutes:g}")
     if changes:
         cfg = dataclasses.replace(cfg, run=override(cfg.run, changes, RUN_OPTIONS))
-    click.echo(f"run: {run_dir} (resumed{'; ' if said else ''}{'; '.join(said)})")
-    train_run(cfg, run_dir, resume=True)
+    _echo_once(f"run: {run_dir} (resumed{'; ' if said else ''}{'; '.join(said)})")
+    with _process_group():
+        train_run(cfg, run_dir, resume=True)
 
 
 @cli.command("eval")

@@ -550,6 +550,10 @@ class RunConfig(_Checked):
     """What a run started from another agent does with the features that agent never saw vary
     (a lone object's extents): ``keep`` them as they are, or ``silence`` their weights (zeroed,
     ``Agent.silence_unseen_features``) (results/cpu-plate-source-2026-11-28/)."""
+    world_size: int = bounded(1, ge=1)
+    """Processes the run is spread over (``torchrun --nproc_per_node``, times ``--nnodes``),
+    each stepping ``num_envs / world_size`` envs: recorded by the launch, not a setting; a
+    resumed run needs the same number (docs/distributed.md)."""
     random_streams: bool = True
     """Every generator draws from its own stream derived from ``seed``; false: each is seeded
     with ``seed`` itself, as runs before 2026-11-25 were (their config.json lacks this key and

@@ -11,6 +11,8 @@ the one used by GAE the value in reward units.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
@@ -18,6 +20,10 @@ from torchrl.data import Composite
 from torchrl.modules import IndependentNormal, ProbabilisticActor
 
 from trainer.config import ACTION_DIM, PPOConfig
+
+PoolMoments = Callable[[int, torch.Tensor, torch.Tensor], tuple[int, torch.Tensor, torch.Tensor]]
+"""(n, mean, var) of a batch -> those of the batches of every process pooled (a distributed
+run's all-reduce; ``trainer.training.distributed.pool_moments``)."""
 
 
 class RunningNorm(nn.Module):
@@ -34,14 +40,30 @@ class RunningNorm(nn.Module):
         self.eps = eps
 
     @torch.no_grad()
-    def update(self, x: torch.Tensor) -> None:
-        """Merge the statistics of ``x`` (..., *shape) into the running ones (Chan et al.)."""
+    def update(self, x: torch.Tensor, pool: PoolMoments | None = None) -> None:
+        """Merge the statistics of ``x`` (..., *shape) into the running ones (Chan et al.).
+        ``pool``: pools this batch's moments with those of the other processes of a distributed
+        run first (``trainer.training.distributed.pool_moments``), so that every process merges
+        the same whole-run batch."""
         x = x.reshape(-1, *self.mean.shape).to(self.mean.dtype)
         x = x[torch.isfinite(x).reshape(len(x), -1).all(-1)]
         n = x.shape[0]
-        if n == 0:
+        if pool is None:
+            if n == 0:
+                return
+            self.merge(n, x.mean(0), x.var(0, unbiased=False))
             return
-        mean, var = x.mean(0), x.var(0, unbiased=False)
+        # Every process joins the pooling, even one with no finite sample.
+        mean = x.mean(0) if n else torch.zeros_like(self.mean)
+        var = x.var(0, unbiased=False) if n else torch.zeros_like(self.var)
+        n, mean, var = pool(n, mean, var)
+        if n > 0:
+            self.merge(n, mean, var)
+
+    @torch.no_grad()
+    def merge(self, n: int, mean: torch.Tensor, var: torch.Tensor) -> None:
+        """Merge a batch of ``n`` samples with mean ``mean`` and (biased) variance ``var``
+        (each of ``shape``) into the running statistics."""
         total = self.count + n
         delta = mean - self.mean
         # In place: TorchRL's loss modules hold references to these very tensors.
@@ -90,12 +112,14 @@ class ObservationNorm(nn.Module):
 
     def update(
         self, proprio: torch.Tensor, obj: torch.Tensor, context: torch.Tensor | None = None,
-        context_mask: torch.Tensor | None = None,
+        context_mask: torch.Tensor | None = None, pool: PoolMoments | None = None,
     ) -> None:
-        self.proprio.update(proprio)
-        self.object.update(obj)
+        """Merge a rollout's observations into the statistics (``pool``: as
+        ``RunningNorm.update``'s)."""
+        self.proprio.update(proprio, pool)
+        self.object.update(obj, pool)
         if self.context is not None and context is not None:
-            self.context.update(context[context_mask])
+            self.context.update(context[context_mask], pool)
 
     def forward(self, proprio: torch.Tensor, obj: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:  # noqa: E501
         return self.proprio(proprio), self.object(obj)

@@ -36,6 +36,7 @@ from trainer.objects import resolve_names
 from trainer.randomness import RandomStreams, run_streams
 from trainer.tasks import GraspTask, make_env
 from trainer.tasks.starts import DamagedStarts, GraspStarts
+from trainer.training import distributed
 from trainer.training.checkpoint import (
     TrainState,
     copy_agent_parts,
@@ -50,8 +51,8 @@ from trainer.training.grasp_starts import (
     object_grasps,
     record_grasp_starts,
 )
-from trainer.training.outcomes import EpisodeStats
-from trainer.training.progress import ProgressLog, RunClock
+from trainer.training.outcomes import EndedEpisodes, EpisodeStats
+from trainer.training.progress import NoLog, ProgressLog, RunClock
 from trainer.training.run_dir import RunDir
 from trainer.training.stop import StopSignals
 
@@ -95,18 +96,25 @@ def train(
     ``run_dir``). A run with ``[run] warmup_objects`` starts from its trained warmup:
     ``train_run`` composes the two."""
     run = RunDir(Path(run_dir))
-    cfg, checkpoint = open_run(run, cfg, resume, overwrite)
-    parts = build_parts(cfg, run, checkpoint, progress)
+    world = distributed.world()
+    cfg, checkpoint = open_run(run, cfg, resume, overwrite, world)
+    parts = build_parts(cfg, run, checkpoint, progress and world.is_main, world)
     env, agent, update, state = parts.env, parts.agent, parts.update, parts.state
     frames, iterations = iteration_frames(cfg), total_iterations(cfg)
-    collector = make_collector(env, agent, frames)
+    collector = make_collector(env, agent, frames // world.size)
     if checkpoint is not None:
         restore_global_rng(checkpoint, env.device)  # after the collector's set-up draws from it
-    log = ProgressLog(run, iterations * frames, state.iteration, frames, resume, progress)
+    log: ProgressLog | NoLog = NoLog()
+    if world.is_main:
+        log = ProgressLog(run, iterations * frames, state.iteration, frames, resume, progress)
     for note in parts.notes:  # (the log opens after the run's state is loaded)
         log.write(note)
-    clock, stop = RunClock(state.wall_time_s, state.iteration * frames), StopSignals()
-    resume_target = Path(resume_as) if resume_as is not None else run.path
+    merge = _merge_episodes if world.distributed else None
+    clock = RunClock(state.wall_time_s, state.iteration * frames)
+    stop = StopSignals(again_stops=not world.distributed)
+    resume_target: Path | str = Path(resume_as) if resume_as is not None else run.path
+    if world.distributed:
+        resume_target = f"{resume_target} (under torchrun, {world.size} processes)"
     try:
         with stop:
             for data in collector:
@@ -115,12 +123,16 @@ def train(
                 stop_after = None if stop_after is None else stop_after - 1
                 state.iteration += 1
                 losses = update(data, state.shuffle)
-                episodes = state.episodes.record(data, state.curriculum)
+                episodes = state.episodes.record(data, state.curriculum, merge)
                 # The row reports the curriculum as this iteration trained; then it moves on.
                 row, postfix, object_h_bars = iteration_row(state, env, frames, episodes, losses)
                 if state.curriculum.promote():
                     env.set_lift_target(state.curriculum.targets())
                 state.wall_time_s, row["fps"] = clock.lap(state.iteration * frames)
+                stopping = stop.received is not None
+                if world.distributed:  # every rank stops alike, on rank 0's clock
+                    stopping, state.wall_time_s = distributed.agree_to_stop(
+                        stopping, state.wall_time_s, env.device)
                 row.update(wall_time_s=state.wall_time_s, action_std=agent.policy_net.mean_std(
                     data["scale"]), lr=update.optimizer.param_groups[0]["lr"])
                 log.log(row, postfix, object_h_bars)
@@ -129,22 +141,43 @@ def train(
                 done = state.iteration == iterations
                 out_of_time = _out_of_time(cfg, state.wall_time_s)
                 if (state.iteration % cfg.run.checkpoint_every == 0 or done or out_of_time
-                        or stop.received):
-                    write_checkpoint(run, state.state_dict())
+                        or stopping):
+                    save_checkpoint(run, state, world)
                 steps = f"{row['env_steps']:,} env steps, iteration {state.iteration}"
                 if out_of_time and not done:
                     log.write(f"stopped: time budget of {cfg.run.max_minutes:g} minutes used "
                               f"({steps}); extend it with --resume {resume_target} --minutes M")
-                elif stop.received and not done:
-                    log.write(f"stopped: {stop.received.name} ({steps}, checkpoint written); "
+                elif stopping and not done:
+                    name = stop.received.name if stop.received else "a signal to another rank"
+                    log.write(f"stopped: {name} ({steps}, checkpoint written); "
                               f"continue it with --resume {resume_target}")
-                if done or out_of_time or stop.received:
+                if done or out_of_time or stopping:
                     break
     finally:
         log.close()
         collector.shutdown()
     stop.reraise()
     return run
+
+
+def save_checkpoint(run: RunDir, state: TrainState, world: distributed.World) -> None:
+    """Write the run's checkpoint: ``state``'s; in a distributed run rank 0 writes it with
+    every other rank's own part (``distributed.PER_RANK_KEYS``) gathered, after checking that
+    the ranks' agents are still one."""
+    state_dict = state.state_dict()
+    if not world.distributed:
+        write_checkpoint(run, state_dict)
+        return
+    distributed.check_same(state.agent, f"iteration {state.iteration}")
+    parts = distributed.gather_to_main(distributed.rank_part(state_dict))
+    if parts is not None:
+        write_checkpoint(run, distributed.with_ranks(state_dict, parts))
+    distributed.barrier()  # (the checkpoint is whole before any rank goes on or ends)
+
+
+def _merge_episodes(ended: EndedEpisodes) -> EndedEpisodes:
+    """The episodes that ended in every process of the run, in a one-process run's order."""
+    return EndedEpisodes.merged(distributed.all_gather(ended))
 
 
 def train_run(
@@ -156,8 +189,9 @@ def train_run(
     started from the warmup's agent; without, ``train``. Arguments as ``train``'s. A run
     stopped in its warmup resumes there with ``resume``."""
     run = RunDir(Path(run_dir))
+    world = distributed.world()
     if resume:
-        cfg = run.config_to_resume(cfg)
+        cfg = run.config_to_resume(cfg, world.size)
     assert cfg is not None or resume
     if cfg is None or not cfg.run.warmup_steps or run.has_checkpoint():
         return train(cfg, run.path, resume=resume, progress=progress, overwrite=overwrite)
@@ -167,10 +201,19 @@ def train_run(
     # this folder (but not before both object sets are known to exist).
     for spec in (cfg.run.warmup_objects, cfg.env.objects):
         resolve_names(spec, cfg.env.data_dir)
-    run.write_config(cfg)
+    cfg = with_world_size(cfg, world.size)
+    if world.is_main:
+        run.write_config(cfg)
     if not _warm_up(cfg, run, progress):
         return run
     return train(cfg, run.path, resume=True, progress=progress)
+
+
+def with_world_size(cfg: TrainConfig, world_size: int) -> TrainConfig:
+    """``cfg`` of a fresh run launched as ``world_size`` processes (``run.world_size``)."""
+    if cfg.run.world_size == world_size:
+        return cfg
+    return dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, world_size=world_size))
 
 
 def warmup_config(cfg: TrainConfig) -> TrainConfig:
@@ -217,20 +260,33 @@ def _warmup_over(warm_cfg: TrainConfig, state: dict[str, Any]) -> bool:
 
 # --- builders --------------------------------------------------------------------------------
 def open_run(
-    run: RunDir, cfg: TrainConfig | None, resume: bool, overwrite: bool
+    run: RunDir, cfg: TrainConfig | None, resume: bool, overwrite: bool,
+    world: distributed.World | None = None,
 ) -> tuple[TrainConfig, dict[str, Any] | None]:
     """The config ``train`` runs and the checkpoint it continues (None: a fresh start): a
-    resumed run's (refused if it has nothing left to do; a run whose warmup just ended has no
-    checkpoint yet), or ``cfg`` in a directory made room for."""
+    resumed run's (refused if it has nothing left to do, or if ``world``, this launch, has
+    another number of processes than the run; a run whose warmup just ended has no
+    checkpoint yet), or ``cfg`` in a directory made room for (by rank 0), recording
+    ``world``'s size. A distributed run's processes join their process group here."""
+    world = world or distributed.World()
     checkpoint = None
     if resume:
-        cfg = run.config_to_resume(cfg)
+        cfg = run.config_to_resume(cfg, world.size)
         if not (cfg.run.warmup_steps and not run.has_checkpoint()):  # (else: after its warmup)
             checkpoint = load_last_checkpoint(run)
             _check_left_to_do(run, cfg, checkpoint)
+            checkpoint = distributed.state_of_rank(checkpoint, world.rank, world.size)
     else:
-        run.make_room(overwrite)
+        assert cfg is not None
+        cfg = with_world_size(cfg, world.size)
+        distributed.local_envs(cfg.env.num_envs, world.size)  # (refused before any file)
+        if world.is_main:
+            run.make_room(overwrite)
     assert cfg is not None
+    if world.distributed:
+        distributed.setup(world, distributed.device_of(cfg.env.device, world))
+        if not resume:
+            distributed.barrier()  # (rank 0 has made room before any rank writes there)
     check_device(
         cfg.env.device, f"device {cfg.env.device!r} of {run.path}",
         "resume it where that device exists" if resume else "train with --device cpu",
@@ -251,18 +307,24 @@ class RunParts:
 
 
 def build_parts(
-    cfg: TrainConfig, run: RunDir, checkpoint: dict[str, Any] | None, progress: bool
+    cfg: TrainConfig, run: RunDir, checkpoint: dict[str, Any] | None, progress: bool,
+    world: distributed.World | None = None,
 ) -> RunParts:
     """The env (with its start strategies), the agent (fresh, from another run's agent, or the
     checkpoint's), the PPO update and the run's state, from ``checkpoint`` or fresh; writes the
     run's config.json. A fresh run's clock starts at its warmup's time plus the minutes spent
-    recording its grasp starts: ``--minutes`` counts both."""
+    recording its grasp starts: ``--minutes`` counts both. A process of a distributed run
+    (``world``) builds its slice of the envs, with its own streams, on its own device, and
+    takes rank 0's agent."""
+    world = world or distributed.World()
     torch.set_num_threads(cfg.run.torch_threads)
-    streams = run_streams(cfg)
+    streams = run_streams(cfg, world.rank)
     streams.seed_global_torch("actions")
+    env_cfg = dataclasses.replace(cfg.env, device=distributed.device_of(cfg.env.device, world),
+                                  nthread=distributed.threads_of(cfg.env.nthread, world))
     # The env first: a config it refuses (a bin larger than the object set, a missing object)
     # leaves no run directory behind that a corrected rerun would have to --overwrite.
-    env = make_env(cfg.env, seed=streams)
+    env = make_env(env_cfg, seed=streams, shard=(world.rank, world.size))
     notes: list[str] = []
     initial_agent, started = None, 0.0
     agent_source = run.warmup if cfg.run.warmup_steps else cfg.run.init_agent
@@ -277,30 +339,58 @@ def build_parts(
         if cfg.run.warmup_steps:
             started = float(load_last_checkpoint(RunDir(run.warmup), "cpu")["wall_time_s"])
     if cfg.run.grasp_starts > 0:
-        starts, seconds = grasp_starts_of(cfg, run, streams, progress, fresh=checkpoint is None)
+        starts, seconds = shared_grasp_starts(cfg, run, streams, progress, checkpoint, world)
         started += seconds
-        env.set_grasp_starts(starts, cfg.run.grasp_starts, streams.torch("grasp_choice"))
         notes.append(f"grasp starts: {int(starts.valid.any(1).sum())} of {cfg.env.num_envs} "
                      f"envs have one; the scripted trials lifted "
                      f"{float(starts.lifted.float().mean()):.2f} of theirs")
-    run.write_config(cfg)
+        first = world.rank * env.num_envs  # (this process's rows: its envs)
+        env.set_grasp_starts(starts.rows(first, first + env.num_envs), cfg.run.grasp_starts,
+                             streams.torch("grasp_choice"))
+    if world.is_main:
+        run.write_config(cfg)
     agent = make_agent(env, cfg.ppo)
     if initial_agent is not None:
         copy_agent_parts(initial_agent, agent, cfg.run.init_agent_parts)
         if cfg.run.init_agent_unseen == "silence":
             silenced = agent.silence_unseen_features()
             notes[0] += f"; {silenced} observation features it never saw vary silenced"
-    update = PPOUpdate.build(agent, cfg.ppo, minibatch_size(cfg))
-    state = make_train_state(cfg, env, agent, update.optimizer)
+    if world.distributed:
+        # A fresh run's ranks drew their own initial weights: all take rank 0's (a resumed
+        # run's are equal already).
+        distributed.broadcast_module(agent)
+    update = PPOUpdate.build(agent, cfg.ppo, max(1, minibatch_size(cfg) // world.size),
+                             distributed=world.distributed)
+    state = make_train_state(cfg, env, agent, update.optimizer, world.rank)
     if checkpoint is not None:
         state.load_state_dict(checkpoint)
-        run.truncate_metrics(state.iteration)
+        if world.is_main:
+            run.truncate_metrics(state.iteration)
     else:
         state.wall_time_s = started
         if cfg.ppo.stagger_episodes:
             env.stagger_next_reset()  # (a resumed run's envs continue where they stood)
     env.set_lift_target(state.curriculum.targets())
     return RunParts(env, agent, update, state, notes)
+
+
+def shared_grasp_starts(
+    cfg: TrainConfig, run: RunDir, streams: RandomStreams, progress: bool,
+    checkpoint: dict[str, Any] | None, world: distributed.World,
+) -> tuple[GraspStarts, float]:
+    """The run's grasp starts for all of its envs and the seconds spent getting them
+    (``grasp_starts_of``). In a distributed run rank 0 gets them, as a one-process run of the
+    config would (recorded on every env of the run, or loaded), while the others wait; then
+    every rank reads them from the run's ``grasp_starts.pt``."""
+    if not world.distributed:
+        return grasp_starts_of(cfg, run, streams, progress, fresh=checkpoint is None)
+    seconds = 0.0
+    if world.is_main:
+        _, seconds = grasp_starts_of(cfg, run, run_streams(cfg), progress,
+                                     fresh=checkpoint is None)
+    distributed.barrier()  # (within the process group's timeout: distributed.TIMEOUT_ENV)
+    # (rank 0's seconds only: the run's clock is rank 0's)
+    return _fitting(GraspStarts.load(run.grasp_starts), cfg, run.grasp_starts), seconds
 
 
 def grasp_starts_of(
@@ -403,20 +493,23 @@ def make_collector(env: GraspTask, agent: Agent, frames: int) -> Collector:
 
 
 def make_train_state(
-    cfg: TrainConfig, env: GraspTask, agent: Agent, optimizer: torch.optim.Optimizer
+    cfg: TrainConfig, env: GraspTask, agent: Agent, optimizer: torch.optim.Optimizer,
+    rank: int = 0,
 ) -> TrainState:
-    """A fresh run's state: iteration 0, the lift curriculum at its start, no episode ended.
-    Success is counted over the last ``run.success_window`` episodes (0: one per env)."""
+    """A fresh run's state (that of process ``rank`` of a distributed run): iteration 0, the
+    lift curriculum at its start, no episode ended. Success is counted over the last
+    ``run.success_window`` episodes of the whole run (0: one per env of the run)."""
     window = cfg.run.success_window or cfg.env.num_envs
     return TrainState(
         agent=agent,
         optimizer=optimizer,
         # Every tensor of the loop lives on the env's device; the minibatch order is drawn
         # there too.
-        shuffle=run_streams(cfg).torch("shuffle", env.device),
+        shuffle=run_streams(cfg, rank).torch("shuffle", env.device),
         # Success at the task's lift height (the paper's measure) and, for the curriculum, at
         # the current training target.
-        episodes=EpisodeStats(cfg.env.num_envs, window, cfg.env.reward.h_bar, env.device),
+        episodes=EpisodeStats(env.num_envs, window, cfg.env.reward.h_bar, env.device,
+                              env_offset=rank * env.num_envs, run_envs=cfg.env.num_envs),
         curriculum=LiftCurriculum(cfg.env.reward, len(env.objects.names), window),
         env=env,
     )
@@ -426,7 +519,14 @@ def make_train_state(
 class PPOUpdate:
     """One PPO update from a rollout: advantages (GAE), value targets, ``ppo.epochs`` passes
     over shuffled minibatches of ``minibatch`` frames of the clipped loss, then the observation
-    statistics."""
+    statistics.
+
+    ``distributed``: this process's rollout is its share of a run's (``trainer.training.
+    distributed``), ``minibatch`` its share of each minibatch; the value and observation
+    statistics pool every process's, each minibatch's advantages are normalized by the moments
+    of every process's minibatch together, the gradients are averaged before clipping and the
+    step, the learning rate adapts to the KL averaged over the processes: every process takes
+    the update one process would take on all the minibatches together."""
 
     agent: Agent
     ppo: PPOConfig
@@ -434,27 +534,34 @@ class PPOUpdate:
     optimizer: torch.optim.Optimizer
     advantage: GAE
     loss: ClipPPOLoss
+    distributed: bool = False
 
     @classmethod
-    def build(cls, agent: Agent, ppo: PPOConfig, minibatch: int) -> PPOUpdate:
+    def build(
+        cls, agent: Agent, ppo: PPOConfig, minibatch: int, distributed: bool = False
+    ) -> PPOUpdate:
         optimizer = torch.optim.Adam(agent.parameters(), lr=ppo.lr)
         advantage = GAE(gamma=ppo.gamma, lmbda=ppo.lmbda, value_network=agent.critic_denorm)
         loss = ClipPPOLoss(
             agent.actor, agent.critic, clip_epsilon=ppo.clip_epsilon,
             entropy_bonus=True, entropy_coeff=ppo.entropy_coef,
-            critic_coeff=ppo.critic_coef, loss_critic_type="l2", normalize_advantage=True,
+            critic_coeff=ppo.critic_coef, loss_critic_type="l2",
+            # (distributed: normalized over every process's minibatch, in ``step``)
+            normalize_advantage=not distributed,
         )
-        return cls(agent, ppo, minibatch, optimizer, advantage, loss)
+        return cls(agent, ppo, minibatch, optimizer, advantage, loss, distributed)
 
     def __call__(self, data: TensorDictBase, shuffle: torch.Generator) -> dict[str, float]:
         """Update from ``data`` (a (num_envs, T) rollout; the advantage and value keys are
         written into it); the minibatch order is drawn from ``shuffle``. Returns the
-        ``LOSS_KEYS``, each its mean over the minibatches (NaN: the loss has no such term)."""
+        ``LOSS_KEYS``, each its mean over the minibatches (and processes) (NaN: the loss has
+        no such term)."""
         agent, ppo = self.agent, self.ppo
+        pool = distributed.pool_moments if self.distributed else None
         # Advantages with values in reward units; the critic learns the normalized targets.
         with torch.no_grad():
             self.advantage(data)
-        agent.value_norm.update(data["value_target"])
+        agent.value_norm.update(data["value_target"], pool)
         data["value_target"] = agent.value_norm(data["value_target"])
         data["state_value"] = agent.value_norm(data["state_value"])
         # The collector's own bookkeeping (trajectory ids) stays on the CPU: not a loss input;
@@ -468,24 +575,40 @@ class PPOUpdate:
             order = torch.randperm(flat.shape[0], generator=shuffle, device=shuffle.device)
             epoch_kl: list[torch.Tensor] = []
             for index in order.split(self.minibatch):
-                out = self.loss(flat[index])
-                loss = out["loss_objective"] + out["loss_critic"]
-                if "loss_entropy" in out:
-                    loss = loss + out["loss_entropy"]
-                self.optimizer.zero_grad(set_to_none=True)
-                loss.backward()
-                torch.nn.utils.clip_grad_norm_(agent.parameters(), ppo.max_grad_norm)
-                self.optimizer.step()
+                out = self.step(flat[index])
                 for key in LOSS_KEYS:
                     if key in out:
                         losses[key].append(out[key].detach().mean())
                 epoch_kl.append(losses["kl_approx"][-1])
             if ppo.lr_schedule == "adaptive":
-                _adapt_lr(self.optimizer, float(torch.stack(epoch_kl).mean()), ppo)
-        agent.obs_norm.update(*(data[key] for key in agent.obs_keys))
-        return {
-            k: (float(torch.stack(v).mean()) if v else float("nan")) for k, v in losses.items()
-        }
+                kl = torch.stack(epoch_kl).mean()
+                if self.distributed:  # (every process adapts its rate alike)
+                    kl = distributed.all_reduce_mean(kl)
+                _adapt_lr(self.optimizer, float(kl), ppo)
+        agent.obs_norm.update(*(data[key] for key in agent.obs_keys), pool=pool)
+        means = {k: torch.stack(v).mean() for k, v in losses.items() if v}
+        if self.distributed and means:
+            averaged = distributed.all_reduce_mean(torch.stack(list(means.values())))
+            means = dict(zip(means, averaged, strict=True))
+        return {k: float(means[k]) if k in means else float("nan") for k in LOSS_KEYS}
+
+    def step(self, batch: TensorDictBase) -> TensorDictBase:
+        """One optimizer step on the minibatch ``batch`` (flat, with advantages and value
+        targets); returns the loss's outputs."""
+        agent = self.agent
+        if self.distributed:
+            batch["advantage"] = distributed.standardize(batch["advantage"])
+        out = self.loss(batch)
+        loss = out["loss_objective"] + out["loss_critic"]
+        if "loss_entropy" in out:
+            loss = loss + out["loss_entropy"]
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if self.distributed:
+            distributed.average_gradients(agent.parameters())
+        torch.nn.utils.clip_grad_norm_(agent.parameters(), self.ppo.max_grad_norm)
+        self.optimizer.step()
+        return out
 
 
 def _adapt_lr(optimizer: torch.optim.Optimizer, kl: float, ppo: PPOConfig) -> None:

@@ -20,6 +20,11 @@ stream              kind                what draws from it
 ``grasp_choice``    torch Generator     which training resets start from them, and where
 ==================  ==================  ====================================================
 
+A run spread over processes (``torchrun``: ``trainer.training.distributed``) gives each rank
+its own streams: rank r > 0 mixes r into every seed except ``layouts`` (every rank must place
+the same objects in the same envs, then step its own slice of them); rank 0's streams are
+those of a one-process run, which a world of one therefore reproduces bit for bit.
+
 The initial-state banks are not run randomness: they are cached data, keyed by their content
 (``trainer.init_states``), seeded by ``init.seed`` and the objects they hold.
 
@@ -40,24 +45,31 @@ if TYPE_CHECKING:
     from trainer.config import TrainConfig
 
 STREAMS = ("layouts", "resets", "actions", "shuffle", "grasp_starts", "grasp_choice")
+SHARED_STREAMS = ("layouts",)
+"""The streams every rank of a distributed run draws alike (the others are per rank)."""
 
 
 class RandomStreams:
-    """The named random streams of one run, all derived from ``seed``."""
+    """The named random streams of one run, all derived from ``seed``; those of process
+    ``rank`` of a distributed run (0: a one-process run's)."""
 
-    def __init__(self, seed: int, legacy: bool = False) -> None:
+    def __init__(self, seed: int, legacy: bool = False, rank: int = 0) -> None:
         self.seed = int(seed)
         self.legacy = legacy
+        self.rank = int(rank)
 
     def seed_of(self, stream: str) -> int:
         """The 63-bit seed of ``stream``: ``seed`` and the stream's name through numpy's
         ``SeedSequence`` (statistically independent streams, stable across platforms)."""
         if stream not in STREAMS:
             raise ValueError(f"unknown random stream {stream!r}: one of {', '.join(STREAMS)}")
-        if self.legacy:
+        per_rank = self.rank > 0 and stream not in SHARED_STREAMS
+        if self.legacy and not per_rank:
             return self.seed
         name_key = int.from_bytes(hashlib.sha256(stream.encode()).digest()[:8], "little")
-        sequence = np.random.SeedSequence(self.seed, spawn_key=(name_key,))
+        # (rank 0 keeps the one-element key: its seeds are a one-process run's)
+        key = (name_key, self.rank) if per_rank else (name_key,)
+        sequence = np.random.SeedSequence(self.seed, spawn_key=key)
         return int(sequence.generate_state(1, np.uint64)[0] >> np.uint64(1))
 
     def numpy(self, stream: str) -> np.random.Generator:
@@ -74,7 +86,7 @@ class RandomStreams:
         torch.manual_seed(self.seed_of(stream))
 
 
-def run_streams(cfg: TrainConfig) -> RandomStreams:
-    """The streams of a training run: its seed, derived unless its config predates the streams
-    (``run.random_streams`` false)."""
-    return RandomStreams(cfg.run.seed, legacy=not cfg.run.random_streams)
+def run_streams(cfg: TrainConfig, rank: int = 0) -> RandomStreams:
+    """The streams of a training run (of its process ``rank``): its seed, derived unless its
+    config predates the streams (``run.random_streams`` false)."""
+    return RandomStreams(cfg.run.seed, legacy=not cfg.run.random_streams, rank=rank)

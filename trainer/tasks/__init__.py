@@ -15,10 +15,14 @@ REGISTRY: dict[str, type[GraspTask]] = {"lift": LiftTask, "bin": BinTask}
 assert set(REGISTRY) == set(TASKS), "trainer.config.TASKS must list every task"
 
 
-def make_env(cfg: EnvConfig, seed: int | RandomStreams = 0) -> GraspTask:
+def make_env(
+    cfg: EnvConfig, seed: int | RandomStreams = 0, shard: tuple[int, int] = (0, 1)
+) -> GraspTask:
     """The environment of ``cfg.task`` with ``cfg.num_envs`` envs, its randomness from ``seed``
-    (a seed's derived streams, or the streams of a run: ``trainer.randomness``)."""
-    return REGISTRY[cfg.task](cfg, seed=seed)
+    (a seed's derived streams, or the streams of a run: ``trainer.randomness``); with ``shard``
+    (rank, world) only the rank-th of ``world`` equal slices of them, each env with the objects
+    it has in the whole (a process of a distributed run: ``trainer.training.distributed``)."""
+    return REGISTRY[cfg.task](cfg, seed=seed, shard=shard)
 
 
 __all__ = ["REGISTRY", "GraspTask", "make_env", "observation_spec"]

@@ -31,6 +31,7 @@ checkpoints clone it, so no task keeps state anywhere else.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import ClassVar
 
 import numpy as np
@@ -66,14 +67,30 @@ from trainer.tasks.terms import (
 )
 
 
+def _slice_layouts(layouts: np.ndarray, env_layout: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the layouts (L', K) that the envs of ``env_layout`` (E,) (a slice of a run's) use, each
+    env's index into them (E,), still non-decreasing)."""
+    used, index = np.unique(env_layout, return_inverse=True)
+    return layouts[used], index.reshape(-1)
+
+
 class GraspTask(EnvBase):
     """Grasp the target object of every env with the robot ``cfg.robot.kind`` names."""
 
     name: ClassVar[str] = ""
 
-    def __init__(self, cfg: EnvConfig, seed: int | RandomStreams = 0) -> None:
+    def __init__(
+        self, cfg: EnvConfig, seed: int | RandomStreams = 0, shard: tuple[int, int] = (0, 1)
+    ) -> None:
+        # shard (rank, world): this task steps the rank-th of ``world`` equal slices of the
+        # ``cfg.num_envs`` envs of a run spread over processes; its own ``cfg`` counts its slice.
+        rank, world = shard
+        run_envs = cfg.num_envs
+        if world > 1:
+            cfg = dataclasses.replace(cfg, num_envs=run_envs // world)
         super().__init__(device=torch.device(cfg.device), batch_size=torch.Size([cfg.num_envs]))
         self.cfg = cfg
+        self.run_envs = run_envs  # (the whole run's envs, every process's together)
         E = cfg.num_envs
         names = task_names(cfg)
         self.objects: ObjectSet = task_objects(cfg, names, self.device)
@@ -81,6 +98,8 @@ class GraspTask(EnvBase):
         # draw from their own streams of the run's seed.
         self.streams = seed if isinstance(seed, RandomStreams) else RandomStreams(seed)
         self.scene, layouts, env_layout = self._layouts(len(names), self.streams.numpy("layouts"))
+        if world > 1:  # the run's layouts, then this slice's envs and the layouts they use
+            layouts, env_layout = _slice_layouts(layouts, env_layout[rank * E:(rank + 1) * E])
         K = self.scene.num_slots
         # Layout l fills slot k with object layouts[l, k]; env i simulates layout env_layout[i]
         # (sorted, so that the CPU backend steps each layout's model on a contiguous block).
@@ -140,7 +159,9 @@ class GraspTask(EnvBase):
     def _layouts(
         self, num_objects: int, rng: np.random.Generator
     ) -> tuple[Scene, np.ndarray, np.ndarray]:
-        """(scene, layouts (L, K) object ids per slot, env_layout (E,) non-decreasing)."""
+        """(scene, layouts (L, K) object ids per slot, env_layout (``run_envs``,)
+        non-decreasing): for every env of the run (a process of a distributed run keeps its
+        slice)."""
         raise NotImplementedError
 
     def _bank_size(self) -> int:

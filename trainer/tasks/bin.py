@@ -32,7 +32,7 @@ class BinTask(GraspTask):
     def _layouts(
         self, num_objects: int, rng: np.random.Generator
     ) -> tuple[Scene, np.ndarray, np.ndarray]:
-        b, E = self.cfg.bin, self.cfg.num_envs
+        b, E = self.cfg.bin, self.run_envs
         if b.num_objects > num_objects:
             raise TrainerError(
                 f"bin of {b.num_objects} objects: the object set {self.cfg.objects!r} has only "

@@ -21,7 +21,7 @@ class LiftTask(GraspTask):
     def _layouts(
         self, num_objects: int, rng: np.random.Generator
     ) -> tuple[Scene, np.ndarray, np.ndarray]:
-        E = self.cfg.num_envs
+        E = self.run_envs
         if num_objects <= E:
             env_object = np.arange(E) % num_objects
         else:

@@ -191,6 +191,13 @@ class GraspStarts:
     used only below the object's current lift target); None in files recorded before it was
     kept (every valid capture is used)."""
 
+    def rows(self, first: int, stop: int) -> GraspStarts:
+        """The starts of envs ``first`` to ``stop`` - 1 (a process's slice of a distributed
+        run's envs)."""
+        return GraspStarts(self.qpos[first:stop], self.qvel[first:stop], self.task[first:stop],
+                           self.valid[first:stop], self.lifted[first:stop],
+                           None if self.lift is None else self.lift[first:stop])
+
     def save(self, path: Path) -> None:
         """Write to ``path`` whole or not at all (``atomic_path``)."""
         with atomic_path(path) as tmp:

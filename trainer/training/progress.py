@@ -75,3 +75,20 @@ class ProgressLog:
     def close(self) -> None:
         self.bar.close()
         self.writer.close()
+
+
+class NoLog:
+    """``ProgressLog``'s interface doing nothing: the processes of a distributed run other than
+    rank 0, which alone writes the run's files and shows its progress."""
+
+    def log(
+        self, row: dict[str, Any], postfix: dict[str, Any],
+        object_h_bars: Sequence[tuple[str, float]] = (),
+    ) -> None:
+        pass
+
+    def write(self, message: str) -> None:
+        pass
+
+    def close(self) -> None:
+        pass

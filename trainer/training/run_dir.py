@@ -6,6 +6,7 @@ Torch-free, so that ``trainer report`` can read runs without importing the train
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import shutil
 from dataclasses import dataclass
@@ -91,12 +92,23 @@ class RunDir:
         with atomic_path(self.config) as tmp:
             tmp.write_text(json.dumps(config_dict(cfg), indent=2))
 
-    def config_to_resume(self, cfg: TrainConfig | None) -> TrainConfig:
+    def config_to_resume(self, cfg: TrainConfig | None, world_size: int = 1) -> TrainConfig:
         """The config a resumed run continues with: its own config.json, or ``cfg`` if that
         differs from it only in the keys of ``GROWABLE`` (a run continues bit for bit only with
         its own config). A config.json written before a field existed is refused, naming the
-        value to add (today's default may not be what it ran with)."""
+        value to add (today's default may not be what it ran with); so is a launch of another
+        ``world_size`` (processes) than the run's ``run.world_size``."""
         stored = self.load_config()
+        if stored.run.world_size != world_size:
+            n = stored.run.world_size
+            how = "" if n == 1 else f"torchrun --nproc_per_node {n} $(which trainer) "
+            raise TrainerError(
+                f"{self.path} was trained by {n} process{'es' if n > 1 else ''}, this launch "
+                f"has {world_size}: resume it with {n} ({how or ''}"
+                f"{'' if how else 'trainer '}run --resume {self.path})"
+            )
+        if cfg is not None and cfg.run.world_size != world_size:  # (a launch records its own)
+            cfg = dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, world_size=world_size))
         for dotted, value in predated_fields(self.config).items():
             parent, name = dotted.rsplit(".", 1)
             raise TrainerError(

@@ -20,10 +20,16 @@ class StopSignals:
     as the signal would have ended it (click's "aborted" for Ctrl-C, termination for SIGTERM).
 
     Only the main thread can take signals: elsewhere this does nothing; a signal the process
-    ignores (``SIG_IGN``) is left ignored."""
+    ignores (``SIG_IGN``) is left ignored.
 
-    def __init__(self) -> None:
+    ``again_stops=False`` (a process of a torchrun run): later signals are swallowed too. A
+    Ctrl-C reaches each worker twice, from the terminal and forwarded by torchrun, which must
+    not count as "stop at once"; torchrun itself kills its workers if they have not ended 30 s
+    after it forwarded a signal."""
+
+    def __init__(self, again_stops: bool = True) -> None:
         self.received: signal.Signals | None = None
+        self.again_stops = again_stops
         self._previous: dict[signal.Signals, Any] = {}
 
     def __enter__(self) -> StopSignals:
@@ -48,7 +54,13 @@ class StopSignals:
             signal.raise_signal(self.received)
 
     def _handle(self, signum: int, frame: FrameType | None) -> None:
+        if self.received is not None:  # (only without again_stops)
+            return
         self.received = signal.Signals(signum)
+        if not self.again_stops:
+            print(f"\n{self.received.name}: stopping at the end of this iteration, with a "
+                  "checkpoint", file=sys.stderr, flush=True)
+            return
         self._restore()  # a second signal: as before
         print(
             f"\n{self.received.name}: stopping at the end of this iteration, with a checkpoint "
