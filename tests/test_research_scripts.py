@@ -5,7 +5,8 @@ scripts/object_curriculum.py (each object's curriculum target over a run),
 scripts/start_noise.py (how much exploration noise grasp starts survive),
 scripts/episode_outcomes.py (how each evaluation episode ends), scripts/metrics_blocks.py (a
 training curve in blocks of env steps), scripts/eval_upright.py (an evaluation split by how
-the targets start) and scripts/grasp_offset.py (where a policy holds each object)."""
+the targets start), scripts/grasp_offset.py (where a policy holds each object) and
+scripts/bin_diagnosis.py (each target's best scripted grasp in clutter, and why it fails)."""
 
 from __future__ import annotations
 
@@ -319,3 +320,42 @@ def test_grasp_offset_measures_the_pads_in_the_object_box_frame(dice_mug: Path) 
     lines = grasp_offset.main([str(dice_mug), "--episodes-per-object", "6", "--objects",
                                "builtin_mug"])
     assert lines[2] == "| builtin_mug | 0/6 | nan | nan |" and len(lines) == 3  # none held
+
+
+def test_bin_diagnosis_runs_each_targets_grasp_in_clutter_and_names_each_failure(
+    builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # scripts/bin_diagnosis.py: every counted trial is a target its family serves, with its
+    # place in the bin measured, and each failure named by the first of its mechanisms. The
+    # built-in objects have no best family: the top grasp serves them all here (no search).
+    import csv
+
+    from trainer.grasps.families import variants
+
+    diagnosis = script("scripts", "bin_diagnosis")
+    names = ["builtin_box", "builtin_cylinder", "builtin_sphere"]
+    monkeypatch.setattr(diagnosis, "object_grasps",
+                        lambda cfg, family: {n: {"family": "top"} for n in names})
+    monkeypatch.setattr(diagnosis, "best_variants",
+                        lambda names, searched: {"top": (variants("top")["base"], list(names))})
+    out = tmp_path / "diag"
+    diagnosis.main(["--objects", ",".join(names), "--bin-objects", "3", "--trials", "6",
+                    "--data-dir", str(builtin_data.data_dir), "--out", str(out)])
+    rows = list(csv.DictReader((out / "trials.csv").open()))
+    assert len(rows) == 6 and {r["target"] for r in rows} <= set(names)
+    for r in rows:
+        gap = float(r["wall_gap"])
+        assert -0.01 < gap < 0.2  # inside the 40 cm bin (a sample may touch the wall)
+        assert (r["at_wall"] == "True") == (gap < diagnosis.WALL_GAP)
+        assert (r["mechanism"] == "lifted") == (r["outcome"] == "lifted")
+    printed = capsys.readouterr().out
+    assert "| overall | 6 |" in printed and "| where the target lay | trials | lifted |" in printed
+    assert (out / "table.md").read_text().count("\n") >= 8
+    # The mechanism's order: covered before the wall before the outcome.
+    assert diagnosis.mechanism("no_grip", True, True) == "covered"
+    assert diagnosis.mechanism("pushed", False, True) == "at wall"
+    assert diagnosis.mechanism("dropped", False, False) == "dropped"
+    assert diagnosis.mechanism("lifted", True, True) == "lifted"
+    with pytest.raises(SystemExit, match="--video needs --out"):
+        diagnosis.main(["--objects", "builtin_box", "--video"])
