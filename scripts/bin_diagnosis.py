@@ -247,7 +247,7 @@ def diagnose(args: argparse.Namespace) -> list[dict]:
             video = None
             if args.video:
                 args.out.mkdir(parents=True, exist_ok=True)
-                video = args.out / f"{spec.replace(':', '-')}.mp4"
+                video = args.out / f"{spec.replace(':', '-').replace('+', '-')}.mp4"
             batch = run_family(env, script, serves, video)
         finally:
             env.close()
