@@ -150,14 +150,7 @@ def run_rows(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
               f"{'env-only frames/s':>18} {'ratio':>6}")
     for n in (int(v) for v in args.envs.split(",")):
         for rep in args.repr.split(","):
-            env = {"task": args.task, "num_envs": n, "objects": args.objects,
-                   "compile": args.compile, "backend": args.backend, "device": args.device}
-            if args.data_dir:
-                env["data_dir"] = Path(args.data_dir)
-            if rep != "default":
-                env["representation"] = rep
-            if args.task == "bin":
-                env["bin"] = {"num_objects": args.bin_objects}
+            env = env_overrides(args, n, rep, args.objects)
             frames = iteration_frames(load_train_config(env=env, sets=sets))
             cfg = load_train_config(
                 env=env, sets=sets,
@@ -167,23 +160,34 @@ def run_rows(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
             env_rate = measured["rate"]
             with tempfile.TemporaryDirectory() as tmp:
                 run = train(cfg, Path(tmp) / "run", progress=False)
-                rows = list(csv.DictReader(run.metrics.read_text().splitlines()))
-            # Skip the first iteration (set-up, first collector reset), as for env-only.
-            seconds = float(rows[-1]["wall_time_s"]) - float(rows[0]["wall_time_s"])
-            train_rate = (len(rows) - 1) * iteration_frames(cfg) / seconds
+                trained = train_rate(run.metrics, iteration_frames(cfg))
             if warp:
                 print(f"{args.task:>5} {n:>6} {cfg.env.representation:>5} "
                       f"{measured['build_s']:>8.1f} {measured['first_s']:>11.1f} "
-                      f"{train_rate:>15.0f} {env_rate:>18.0f} {train_rate / env_rate:>6.2f} "
-                      f"{measured['physics']:>13.0f} {train_rate / PAPER_STEPS_PER_S:>14.3f}")
+                      f"{trained:>15.0f} {env_rate:>18.0f} {trained / env_rate:>6.2f} "
+                      f"{measured['physics']:>13.0f} {trained / PAPER_STEPS_PER_S:>14.3f}")
             else:
-                print(f"{args.task:>5} {n:>6} {cfg.env.representation:>6} {train_rate:>15.0f} "
-                      f"{env_rate:>18.0f} {train_rate / env_rate:>6.2f}")
+                print(f"{args.task:>5} {n:>6} {cfg.env.representation:>6} {trained:>15.0f} "
+                      f"{env_rate:>18.0f} {trained / env_rate:>6.2f}")
     if warp:
         print("ratio: train / env-only frames/s, same run (target >= 0.50); phys: step_held "
               "alone, same env; build and 1st batch (Warp's kernels, torch.compile, the CUDA "
               f"graph) are not in the rates; paper: {PAPER_STEPS_PER_S:,} env steps/s (COM, "
               "PPO, RTX A6000). Issue target on one H100: >= 150,000 with PPO at 16,384 envs.")
+
+
+def env_overrides(args: argparse.Namespace, num_envs: int, rep: str, objects: str) -> dict:
+    """The env config of one row: the task, ``num_envs`` envs, ``objects``, the representation
+    ``rep`` ("default": the task's own) and the command line's backend and data options."""
+    env = {"task": args.task, "num_envs": num_envs, "objects": objects,
+           "compile": args.compile, "backend": args.backend, "device": args.device}
+    if args.data_dir:
+        env["data_dir"] = Path(args.data_dir)
+    if rep != "default":
+        env["representation"] = rep
+    if args.task == "bin":
+        env["bin"] = {"num_objects": args.bin_objects}
+    return env
 
 
 def train_rate(metrics: Path, frames: int) -> float:
@@ -209,14 +213,7 @@ def process_rows(args: argparse.Namespace) -> None:
           f"{f'{procs} proc x 1 thr':>15} {'ratio':>6}")
     for n in (int(v) for v in envs.split(",")):
         for rep in reps.split(","):
-            env = {"task": args.task, "num_envs": n, "objects": objects,
-                   "compile": args.compile, "backend": args.backend, "device": args.device}
-            if args.data_dir:
-                env["data_dir"] = Path(args.data_dir)
-            if rep != "default":
-                env["representation"] = rep
-            if args.task == "bin":
-                env["bin"] = {"num_objects": args.bin_objects}
+            env = env_overrides(args, n, rep, objects)
             frames = iteration_frames(load_train_config(env=env, sets=sets))
             steps = frames * (args.iterations + 1)
             run = {"total_steps": steps, "checkpoint_every": 10**9}
