@@ -260,6 +260,22 @@ def test_searched_grasp_records_beside_other_families(
     assert bool(starts.lifted.any())
 
 
+def count_recordings(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """Count the runs' grasp-start recordings: one item per call of ``record_grasp_starts``
+    from ``trainer.ppo`` (which still records)."""
+    import trainer.ppo
+
+    recordings: list[int] = []
+    real_record = trainer.ppo.record_grasp_starts
+
+    def counted(*args: object, **kwargs: object) -> GraspStarts:
+        recordings.append(1)
+        return real_record(*args, **kwargs)
+
+    monkeypatch.setattr(trainer.ppo, "record_grasp_starts", counted)
+    return recordings
+
+
 def test_recording_the_starts_says_so_and_counts_against_the_time_budget(
     builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
 ) -> None:
@@ -298,20 +314,12 @@ def test_a_repeated_run_loads_the_starts_an_earlier_run_recorded(
     another key."""
     import dataclasses
 
-    import trainer.ppo
     from trainer.ppo import train
     from trainer.training.grasp_starts import cached_starts_path, object_grasps
 
     data = Config(data_dir=own_data_dir(builtin_data, tmp_path / "data"))
     cfg = tiny_grasp_start_config(data)
-    recordings: list[int] = []
-    real_record = trainer.ppo.record_grasp_starts
-
-    def counted(*args: object, **kwargs: object) -> GraspStarts:
-        recordings.append(1)
-        return real_record(*args, **kwargs)
-
-    monkeypatch.setattr(trainer.ppo, "record_grasp_starts", counted)
+    recordings = count_recordings(monkeypatch)
     first = train(cfg, tmp_path / "first", progress=False)
     cached = cached_starts_path(cfg, object_grasps(cfg.env, "top"))
     assert recordings == [1] and cached.parent == data.data_dir / "grasps" / "starts"
@@ -334,7 +342,6 @@ def test_damaged_grasp_starts_are_recorded_again(
     (cut short, other bytes, a part missing) is said in one line and replaced, no traceback:
     recorded again (the same states: the same streams) where the other copy is damaged too,
     else taken from the intact copy; ``GraspStarts.load`` refuses each in one line."""
-    import trainer.ppo
     from trainer.ppo import grasp_starts_of
     from trainer.randomness import run_streams
     from trainer.training.grasp_starts import cached_starts_path, object_grasps
@@ -344,14 +351,7 @@ def test_damaged_grasp_starts_are_recorded_again(
     cfg = tiny_grasp_start_config(data)
     run = RunDir(tmp_path / "run")
     run.path.mkdir()
-    recordings: list[int] = []
-    real_record = trainer.ppo.record_grasp_starts
-
-    def counted(*args: object, **kwargs: object) -> GraspStarts:
-        recordings.append(1)
-        return real_record(*args, **kwargs)
-
-    monkeypatch.setattr(trainer.ppo, "record_grasp_starts", counted)
+    recordings = count_recordings(monkeypatch)
     starts, _ = grasp_starts_of(cfg, run, run_streams(cfg), False, fresh=True)
     cached = cached_starts_path(cfg, object_grasps(cfg.env, "top"))
     assert recordings == [1] and cached.is_file() and run.grasp_starts.is_file()
