@@ -29,6 +29,12 @@ forces when the pull ended, and the least and most any contact then used of its 
 cone) and adds ``held_end`` and ``trainer.grasps.families.HOLD_KEYS`` (medians) to the table
 and the CSV; ``--hold-out FILE`` writes every probed trial's measurements (one row each).
 
+``--family best`` tries each object with its own best family only (``BEST``, else its searched
+grasp): the graspability bench's check that a change keeps every object's grasp. A family
+variant's own settings win over ``--set`` / ``--grid`` (a clash is an error) unless
+``--over-family``: then the configuration's values replace the variant's, to measure a physics
+change under the families that fix it (results/bench-step-phases-2026-11-29/).
+
 ``--seed`` takes several seeds (``0,1,2`` or ``0-4``): each configuration and family is measured
 once per seed (the CSV's ``seed`` column), and with ``--hold`` a last table pools every held
 trial per object over the seeds: the pull ratio's median and how many reach 0.8 (issue 33's
@@ -39,6 +45,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import itertools
 import math
 import statistics
@@ -52,7 +59,7 @@ from geomgrasp.errors import UserError
 from geomgrasp.files import atomic_path
 from trainer.config import dotted_overrides as overrides
 from trainer.config_keys import check_set, parse_assignment, parse_sets, parse_value
-from trainer.grasps.families import HOLD_KEYS
+from trainer.grasps.families import HOLD_KEYS, merge_overrides
 
 COLUMNS = ("object", "family", "trials", "lifted", "dropped", "no_grip", "pushed")
 """The CSV's leading columns, as the graspability benchmark names them (issue 33)."""
@@ -209,7 +216,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--trials", type=int, default=10, help="trials per object [10]")
     parser.add_argument("--out", type=Path, default=None, help="CSV of every row")
     parser.add_argument("--family", default="top",
-                        help="families, comma-separated, each optionally FAMILY:VARIANT [top]")
+                        help="families, comma-separated, each optionally FAMILY:VARIANT, or "
+                        "best: each object's own best family only [top]")
     parser.add_argument("--backend", choices=("cpu", "warp"), default=None, help="[cpu]")
     parser.add_argument("--device", default=None, help="torch / Warp device [cpu]")
     parser.add_argument("--seed", default="0",
@@ -220,6 +228,9 @@ def main(argv: list[str] | None = None) -> None:
                         help="an override of the configuration under test (repeatable)")
     parser.add_argument("--grid", dest="grids", action="append", default=[],
                         metavar="KEY=V1,V2", help="one configuration per value (repeatable)")
+    parser.add_argument("--over-family", action="store_true",
+                        help="--set / --grid replace a family variant's own setting of the same "
+                        "key (e.g. a physics cut under the families that fix no-slip)")
     parser.add_argument("--hold", action="store_true",
                         help="probe the held trials' slip and pull (cpu backend)")
     parser.add_argument("--hold-out", type=Path, default=None,
@@ -248,9 +259,11 @@ def run(args: argparse.Namespace) -> None:
     if args.hold_out is not None and not args.hold:
         raise UserError("--hold-out writes the hold probe's trials: add --hold")
     seeds = parse_seeds(str(args.seed))
-    families = parse_families(args.family)
     configs = configurations(args.sets, args.grids)
-    check_not_fixed(families, configs)
+    best = args.family == "best"
+    families = [] if best else parse_families(args.family)
+    if not args.over_family:
+        check_not_fixed(families, configs)
     env: dict[str, Any] = {k: v for k, v in {
         "data_dir": args.data_dir, "backend": args.backend, "device": args.device}.items()
         if v is not None}
@@ -266,9 +279,25 @@ def run(args: argparse.Namespace) -> None:
 
     rows: list[dict] = []
     totals: dict[str, tuple[int, int]] = {}
-    variants = [(fam, v, family_variants(fam, [v])[v]) for fam, v in families]
-    for batch in run_trials(variants, objects, args.trials, seeds, configs, args.config,
-                            hold=args.hold, **env):
+    # (family, variant name, Variant, the objects it is tried on)
+    if best:  # each object with its own best family only (BEST, else its searched grasp)
+        from trainer.grasps.families import best_variants
+
+        groups = [(spec.partition(":")[0], spec.partition(":")[2] or "base", variant, names)
+                  for spec, (variant, names) in best_variants(objects, objects).items()]
+    else:
+        groups = [(fam, v, family_variants(fam, [v])[v], objects) for fam, v in families]
+
+    def batches():
+        for config in configs:
+            for fam, v, variant, names in groups:
+                if args.over_family:  # the configuration's keys replace the variant's own
+                    variant = dataclasses.replace(
+                        variant, env=merge_overrides(variant.env, overrides(config)))
+                yield from run_trials([(fam, v, variant)], names, args.trials, seeds, [config],
+                                      args.config, hold=args.hold, **env)
+
+    for batch in batches():
         name, seed, config = label(batch.config), batch.seed, batch.config
         for row in batch.rows:
             row.update(config=name, seed=seed, **{k: config.get(k, "") for k in keys})

@@ -7,6 +7,10 @@
 #                                                  (bench/env_throughput.py --policy, the run's
 #                                                  config and GPU_CAMPAIGN_BENCH's variants):
 #                                                  bench.log and the kernel cache in $OUT
+#   bash scripts/gpu-campaign.sh phases            unpack, then time the physics step phase by
+#                                                  phase (bench/step_phases.py --policy, the
+#                                                  run's config and GPU_CAMPAIGN_PHASES'
+#                                                  variants): phases.log and the kernel cache
 #   bash scripts/gpu-campaign.sh run               unpack every part, train the campaign's next
 #                                                  chunk, evaluate it, put the files in $OUT:
 #                                                  last.pt, chunk.tar (metrics.csv, config.json,
@@ -56,8 +60,8 @@ case "${1:-}" in
     cp "${parts[@]}" "$STAGE/parts/" || exit 1
     log "staged: $(ls "$STAGE/parts" | tr '\n' ' ')"
     exit 0 ;;
-  run|bench) mode=$1 ;;
-  *) echo "usage: bash scripts/gpu-campaign.sh stage [PART...] | run | bench" >&2; exit 2 ;;
+  run|bench|phases) mode=$1 ;;
+  *) echo "usage: bash scripts/gpu-campaign.sh stage [PART...] | run | bench | phases" >&2; exit 2 ;;
 esac
 
 # Warp's compiled kernels, so that the next call need not compile them: in pieces of 15 MB,
@@ -99,14 +103,30 @@ EOF
   mkdir -p .gpu-pack
   { [ -d .gpu-pack/data ] && [ ! -L .gpu-pack/data ]; } || ln -sfn "$STAGE/data" .gpu-pack/data
 fi
-if [ "$mode" = bench ]; then
+# The cuts of the hand's step measured on the CPU (results/bench-step-phases-2026-11-29/), each
+# alone and the three that keep every grasp together (tip-hulls loses the knife's pinch), and
+# the capsule hand of 2026-11-23 for reference, against the run's own config.
+CUTS="--variant physics.noslip_iterations=2 --variant physics.table_plane=true \
+  --variant robot.hand_geometry=tip-hulls \
+  --variant 'warp.contacts_per_world=64 warp.constraints_per_world=256' \
+  --variant 'physics.noslip_iterations=2 physics.table_plane=true warp.contacts_per_world=64 warp.constraints_per_world=256' \
+  --variant robot.hand_geometry=capsules"
+if [ "$mode" = bench ] || [ "$mode" = phases ]; then
   # What the physics costs in contact: the campaign's policy drives the run's own config and each
-  # variant at 16,384 envs (bench/env_throughput.py --policy), until the deadline.
-  args=${GPU_CAMPAIGN_BENCH:-"--envs 16384 --advance 30 --steps 8 --rounds 2 --variant physics.noslip_iterations=0 --variant physics.noslip_iterations=2 --variant robot.hand_geometry=capsules"}
-  log "bench: $args"
-  # shellcheck disable=SC2086
-  timeout -s INT $(( DEADLINE - ($(date +%s) - start) - 30 )) "$PY" bench/env_throughput.py \
-    --backend "${GPU_CAMPAIGN_BENCH_BACKEND:-warp}" --device "${GPU_CAMPAIGN_BENCH_DEVICE:-cuda}" --policy "$RUN" $args 2>&1 | grep -v -i warning | tee "$OUT/bench.log"
+  # variant at 16,384 envs, until the deadline. bench: env steps/s with the policy
+  # (bench/env_throughput.py --policy); phases: where one physics step's time goes
+  # (bench/step_phases.py). GPU_CAMPAIGN_BENCH / GPU_CAMPAIGN_PHASES replace the arguments
+  # (shell words: quote a variant of several keys).
+  if [ "$mode" = bench ]; then
+    script=bench/env_throughput.py
+    eval "args=(${GPU_CAMPAIGN_BENCH:-"--envs 16384 --advance 30 --steps 8 --rounds 2 $CUTS"})"
+  else
+    script=bench/step_phases.py
+    eval "args=(${GPU_CAMPAIGN_PHASES:-"--envs 16384 --advance 30 --repeats 3 --rounds 2 $CUTS"})"
+  fi
+  log "$mode: ${args[*]}"
+  timeout -s INT $(( DEADLINE - ($(date +%s) - start) - 30 )) "$PY" "$script" \
+    --backend "${GPU_CAMPAIGN_BENCH_BACKEND:-warp}" --device "${GPU_CAMPAIGN_BENCH_DEVICE:-cuda}" --policy "$RUN" "${args[@]}" 2>&1 | grep -v -i warning | tee "$OUT/$mode.log"
   return_kernels
   log "done: $(ls "$OUT" | tr '\n' ' ')"
   exit 0

@@ -89,3 +89,42 @@ def test_unknown_names_are_one_line_errors(
     assert exc.value.code == 1
     err = capsys.readouterr().err
     assert err.startswith(message) and err.count("\n") == 1, err
+
+
+def test_over_family_lets_the_configuration_replace_the_variants_own_setting(
+    builtin_data, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``--over-family``: a key the variant fixes is no error, and the configuration under
+    test runs the variant with its value (the baseline with the variant's own); ``--family
+    best`` tries each object with its own best family only."""
+    import trainer.grasps.trials as trials
+
+    seen = []
+
+    def record(variants, objects, trials_per_object, seeds, configs, *args, **kwargs):
+        (fam, name, variant), = variants
+        seen.append((fam, name, variant.env["physics"]["noslip_iterations"], tuple(objects)))
+        row = {"object": objects[0], "trials": 1, "lifted": 1, "dropped": 0, "no_grip": 0,
+               "pushed": 0, "upside_down": 0, "upside_down_lifted": 0}
+        return iter([trials.TrialBatch(fam, name, 0, [row], 0.0, configs[0])])
+
+    monkeypatch.setattr(trials, "run_trials", record)
+    graspability.main(["--data-dir", str(builtin_data.data_dir), "--objects", "builtin_box",
+                       "--family", "pinch:press6+noslip", "--over-family",
+                       "--grid", "physics.noslip_iterations=5,2"])
+    assert seen == [("pinch", "press6+noslip", 5, ("builtin_box",)),
+                    ("pinch", "press6+noslip", 2, ("builtin_box",))]
+    seen.clear()
+    import trainer.grasps.families as families
+
+    monkeypatch.setattr(families, "BEST", {"builtin_box": "pinch:press6+noslip",
+                                           "builtin_cylinder": "pinch:press6+noslip",
+                                           "builtin_sphere": "top"})
+    graspability.main(["--data-dir", str(builtin_data.data_dir), "--objects",
+                       "builtin_box,builtin_sphere,builtin_cylinder", "--family", "best",
+                       "--over-family", "--set", "physics.noslip_iterations=2"])
+    both = ("builtin_box", "builtin_cylinder")
+    assert sorted(seen) == [("pinch", "press6+noslip", 2, both),
+                            ("pinch", "press6+noslip", 5, both),
+                            ("top", "base", 2, ("builtin_sphere",)),
+                            ("top", "base", 5, ("builtin_sphere",))]

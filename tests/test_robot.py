@@ -282,6 +282,22 @@ def test_hull_hand_compiles_for_both_robots_with_the_capsules_bits_and_material(
         assert meshes.nmesh == len(sih.HULL_OF) == 11
 
 
+def test_tip_hulls_hand_has_hulls_on_the_touching_links_and_capsules_elsewhere() -> None:
+    """``tip-hulls``: the links of ``sih.TIP_LINKS`` collide as their hulls, the proximal links
+    as their capsules, with the same masses and collision bits as either hand."""
+    mixed = _model("floating", hand_geometry="tip-hulls")
+    capsules = _model("floating", hand_geometry="capsules")
+    assert set(sih.TIP_LINKS) < set(sih.HULL_OF) and mixed.nmesh == len(sih.TIP_LINKS) == 6
+    for body in sih.HULL_OF:
+        (geom,) = np.flatnonzero(mixed.geom_bodyid == mixed.body(body).id)
+        expected = (mujoco.mjtGeom.mjGEOM_MESH if body in sih.TIP_LINKS
+                    else mujoco.mjtGeom.mjGEOM_CAPSULE)
+        assert mixed.geom_type[geom] == expected, body
+        assert mixed.body(body).mass == pytest.approx(capsules.body(body).mass)
+        assert mixed.geom_contype[geom] == capsules.geom_contype[
+            np.flatnonzero(capsules.geom_bodyid == capsules.body(body).id)[0]]
+
+
 def test_fingertip_sites_lie_on_the_distal_pads(hulls: mujoco.MjModel) -> None:
     """At q = 0 each fingertip site is within 1 mm of its distal hull's surface (sih_hand.md
     section 10 (a): -0.05 to -0.16 mm; the little finger +0.86 mm, its pad under-sampled)."""

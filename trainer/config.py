@@ -64,7 +64,7 @@ AGENT_PARTS = ("networks", "action_std", "normalizers")
 layers, the policy's state-independent action std, the observation and value normalizers."""
 ROBOTS = ("ur5e", "floating")
 INIT_AGENT_UNSEEN = ("keep", "silence")
-HAND_GEOMETRIES = ("capsules", "hulls")
+HAND_GEOMETRIES = ("capsules", "hulls", "tip-hulls")
 HAND_ACTIONS = ("absolute", "relative")
 HAND_DRIVES = ("equalities", "all-joints")
 
@@ -102,6 +102,10 @@ class PhysicsConfig(_Checked):
     continue bit for bit (a checkpoint restores every object awake)."""
     table_size: tuple[float, float, float] = bounded((0.4, 0.4, 0.02), gt=0)
     """Half-sizes of the table top (m); its top surface is at z = 0."""
+    table_plane: bool = False
+    """Objects collide with the table as the plane of its top (z = 0), the robot with its box:
+    the same surface, and for MuJoCo Warp a primitive test, not GJK/EPA
+    (results/bench-step-phases-2026-11-29/). An object pushed off the edge rests at z = 0."""
     # The contact materials (``materials``; defaults: ``geomgrasp.materials.DEFAULTS``).
     table_friction: tuple[float, float, float] = bounded(materials.TABLE.friction, ge=0)
     """Sliding, torsional, rolling friction of the table, the bin and the arm."""
@@ -154,9 +158,10 @@ class RobotConfig(_Checked):
     """Hand servo torque limit (N·m): the real SIH servos' 0.75 N·m (the capsule hand used 5)
     (results/graspability-drives-2026-11-25/)."""
     hand_geometry: str = bounded("hulls", choices=HAND_GEOMETRIES)
-    """Collision shapes of the 11 finger and thumb links: ``capsules`` (our estimate) or
-    ``hulls`` (convex hulls of the published link meshes, ``trainer/robots/sih_hulls.json``);
-    the palm is a box either way (results/graspability-2026-11-25/)."""
+    """Collision shapes of the 11 finger and thumb links: ``capsules`` (our estimate),
+    ``hulls`` (of the published link meshes, ``trainer/robots/sih_hulls.json``) or ``tip-hulls``
+    (hulls on the distal links, capsules on the proximal ones); the palm is a box
+    (results/graspability-2026-11-25/, results/bench-step-phases-2026-11-29/)."""
     hand_drive: str = bounded("all-joints", choices=HAND_DRIVES)
     """How the 5 servo commands reach the 11 joints: ``equalities`` (5 actuators, followers on
     soft 1:1 equalities) or ``all-joints`` (11 actuators, each follower given its leader's

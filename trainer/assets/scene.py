@@ -124,6 +124,21 @@ def _add_table(spec: mujoco.MjSpec, physics: PhysicsConfig) -> None:
     for geom in (floor, table):
         geom.contype = BIT_STATIC
         geom.conaffinity = BIT_OBJECT | BIT_ARM | BIT_HAND
+    if physics.table_plane:
+        # The objects meet the table as the plane of its top (a primitive test for MuJoCo
+        # Warp), the robot its box: an unbounded plane would catch the arm's base links,
+        # which stand below the top beside the table.
+        top = world.add_geom()
+        top.name = "table_top"
+        top.type = mujoco.mjtGeom.mjGEOM_PLANE
+        top.size = (physics.table_size[0], physics.table_size[1], 0.05)
+        top.rgba = (0.0, 0.0, 0.0, 0.0)
+        materials.tag(spec, top, "table")
+        # A pair collides when one's contype meets the other's conaffinity, and the objects,
+        # the arm and the hand all take BIT_STATIC (and each other's bits): so the plane and the
+        # box each select by their conaffinity alone.
+        top.contype, top.conaffinity = 0, BIT_OBJECT
+        table.contype, table.conaffinity = 0, BIT_ARM | BIT_HAND
     camera = world.add_camera()
     camera.name = "front"
     camera.pos = (0.75, -0.75, 0.55)

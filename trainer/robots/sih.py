@@ -5,7 +5,8 @@ becomes actuator targets).
 Collision geometry (``[robot] hand_geometry``): ``hulls`` (the default): each finger and thumb
 link the convex hull of its published visual mesh (``sih_hulls.json`` beside this module; its
 ``source`` and ``about`` say where from and how), or ``capsules`` of the real link sizes (the
-project's first hand, kept as a measured comparison).
+project's first hand, kept as a measured comparison), or ``tip-hulls``: hulls on the links that
+touch (``TIP_LINKS``), capsules on the others.
 The palm is a box either way (no palm mesh was readable). Every collision geom is tagged with the
 ``hand`` contact material (``geomgrasp.materials``). Frames: the palm body's frame is the SIH
 palm frame, fingers along +z, palmar side +y. Fingers sit at their physical x (see the x-mirror
@@ -121,6 +122,11 @@ HULL_OF = {
 inside the palm, and the full hull spans a wedge of air between the housing and the shaft's end,
 partly outside the palm box (sih_hand.md section 10, "Thumb shaft")."""
 
+TIP_LINKS = ("if_distal", "mf_distal", "rf_distal", "lf_distal", "th_inter", "th_distal")
+"""The links that take ~97 % of the hand's contacts with objects and fixtures in a trained
+policy's grasps (the proximal links: < 0.1 per env, results/bench-step-phases-2026-11-29/): the
+hulls of ``hand_geometry = "tip-hulls"``; the other links are capsules."""
+
 
 @functools.cache
 def hull_vertices() -> dict[str, np.ndarray]:
@@ -206,10 +212,11 @@ def add_sih_hand(
     (``FOLLOWER_ACTUATORS``, after the 5), the fingertip sites (``FINGERTIPS``), a ``palm`` site
     at the palm keypoint, and the published self-collision exclusions. Its collision geoms are
     tagged ``hand``: the scene applies the hand's contact material
-    (``geomgrasp.materials.apply_materials``). ``robot.hand_geometry`` picks capsules or hulls
-    for the links, ``robot.hand_joint_damping`` the joints' damping.
+    (``geomgrasp.materials.apply_materials``). ``robot.hand_geometry`` picks capsules, hulls or
+    both (``TIP_LINKS``) for the links, ``robot.hand_joint_damping`` the joints' damping.
     """
-    hulls = robot.hand_geometry == "hulls"
+    hull_links = {"hulls": set(HULL_OF), "tip-hulls": set(TIP_LINKS)}.get(robot.hand_geometry,
+                                                                            set())
     damping = robot.hand_joint_damping
 
     def link(
@@ -229,7 +236,7 @@ def add_sih_hand(
         body.pos = pos
         body.gravcomp = 1.0
         _hinge(body, joint, axis, limits, damping)
-        if hulls:
+        if name in hull_links:
             _hull(spec, body, mass)
         else:
             _capsule(spec, body, *capsule, mass)
