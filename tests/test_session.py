@@ -137,3 +137,31 @@ def test_eval_splits_each_object_by_how_its_target_started(dice_mug: Path) -> No
     split = script("scripts", "eval_upright").split_by_start_up(dice_mug, 6)
     expected = [(up, up_held) for _, up, up_held, _, _ in split]
     assert result.face_up == expected
+
+
+def test_eval_names_how_each_episode_ended(dice_mug: Path) -> None:
+    """trainer eval puts every episode in one ending (endings.csv): the successes are the
+    successes, the endings of an object add up to its episodes; the classes follow the target
+    centre's height (never lifted, dropped, stalled, knocked off)."""
+    import csv
+
+    import torch
+
+    from trainer.evaluation import ENDINGS, EpisodeEndings
+
+    result = evaluate(dice_mug, episodes_per_object=4, out="eval-endings")
+    assert result.endings is not None and set(result.endings) == set(ENDINGS)
+    rows = list(csv.DictReader((dice_mug / "eval-endings" / "endings.csv").open()))
+    for k, row in enumerate(rows):
+        assert int(row["success"]) == result.successes[k]
+        assert sum(int(row[e.replace(" ", "_")]) for e in ENDINGS) == result.episodes[k]
+    assert "How the episodes ended" in (dice_mug / "eval-endings" / "table.md").read_text()
+    # the classes, from the heights (m): start, highest, last of five episodes
+    ends = EpisodeEndings()
+    ends.parts = [torch.full((5,), -1)]
+    ends.start = torch.tensor([0.02, 0.02, 0.02, 0.02, 0.02])
+    ends.top = torch.tensor([0.025, 0.10, 0.10, 0.25, 0.02])
+    ends.last = torch.tensor([0.02, 0.03, 0.09, 0.25, -0.20])
+    success = torch.tensor([False, False, False, True, False])
+    assert [ENDINGS[i] for i in ends._classify(success)] == [
+        "never lifted", "dropped", "stalled", "success", "knocked off"]

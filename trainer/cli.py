@@ -618,7 +618,7 @@ def eval_cmd(
     _at_least("--episodes-per-object", episodes_per_object, 1)
     _at_least("--max-rounds", max_rounds, 1)
     _device(device)
-    from trainer.evaluation import evaluate
+    from trainer.evaluation import ENDINGS, evaluate
 
     if iteration is not None:
         _at_least("--iteration", iteration, 1)
@@ -646,6 +646,9 @@ def eval_cmd(
         if result.face_up is not None and result.upside_down(k)[0]:  # (by_start.csv)
             (up, up_held), (down, down_held) = result.face_up[k], result.upside_down(k)
             held += f"  (started face up {up_held}/{up}, upside down {down_held}/{down})"
+        if result.endings is not None and result.successes[k] < result.episodes[k]:
+            ends = [f"{e} {result.endings[e][k]}" for e in ENDINGS[1:] if result.endings[e][k]]
+            held += f"  failed: {', '.join(ends)}"
         click.echo(f"{name:<{width}}  {result.successes[k]}/{result.episodes[k]}{held}")
     click.echo(f"{'overall':<{width}}  {result.overall:.3f}")
     click.echo(f"success: the target {result.success_text}")

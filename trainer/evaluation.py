@@ -65,6 +65,9 @@ class EvalResult:
     nearest_pad: list[float | None] | None = None
     """Per object, the median distance (m) of the nearest pad at the success steps (None
     where no success)."""
+    endings: dict[str, list[int]] | None = None
+    """Per ending (``ENDINGS``: success, never lifted, dropped, stalled, knocked off), per
+    object: the episodes that ended so (``EpisodeEndings``; None: not measured)."""
     face_up: list[tuple[int, int]] | None = None
     """Per object, (episodes, successes) of the episodes whose target started face up: its
     mesh's up axis pointing up after the first action (lift; None: not measured). A plate
@@ -150,8 +153,9 @@ def evaluate(
     cfg = session.cfg
     names = session.names(objects)
     collector = SuccessPads() if pads else None
-    start_up = StartsFaceUp()
-    hooks = chain_hooks(start_up.hooks(), collector.hooks() if collector is not None else {})
+    start_up, endings = StartsFaceUp(), EpisodeEndings()
+    hooks = chain_hooks(start_up.hooks(), endings.hooks(),
+                        collector.hooks() if collector is not None else {})
     with session.sampling(seed) if sample else contextlib.nullcontext():
         if cfg.env.task == "bin":
             result, episodes = _evaluate_bin(
@@ -166,7 +170,8 @@ def evaluate(
                                 representation=cfg.env.representation,
                                 face_up=start_up.counts(episodes, len(names)))
     result = dataclasses.replace(
-        result, success_text=cfg.env.reward.success_text(), iteration=iteration, sampled=sample
+        result, success_text=cfg.env.reward.success_text(), iteration=iteration, sampled=sample,
+        endings=endings.counts(episodes, len(names)),
     )
     if collector is not None:
         result = dataclasses.replace(result, held=collector.held(episodes, len(names)),
@@ -218,6 +223,74 @@ class StartsFaceUp:
         return list(zip(torch.bincount(target, minlength=num_objects).tolist(),
                         torch.bincount(target[episodes.success[up]],
                                        minlength=num_objects).tolist(), strict=True))
+
+
+ENDINGS = ("success", "never lifted", "dropped", "stalled", "knocked off")
+"""How an episode ends (``EpisodeEndings``)."""
+LIFTED_RISE = 0.01
+"""A target whose centre never rose this far (m) over its episode was ``never lifted``."""
+DROP = 0.03
+"""A target that rose and ended this far (m) below its highest point was ``dropped``."""
+KNOCKED_OFF = 0.05
+"""A target that ended this far (m) below where it started left the table: ``knocked off``."""
+
+
+class EpisodeEndings:
+    """Per episode, how it ended, by the target centre's height over the episode: ``success``;
+    ``knocked off`` (ended ``KNOCKED_OFF`` below its start: off the table); ``never lifted``
+    (never rose ``LIFTED_RISE``); ``dropped`` (rose, then ended ``DROP`` below its highest
+    point); ``stalled`` (rose and stayed up, but not to the lift height or not held). The
+    ``on_reset``, ``on_step`` and ``on_episode`` hooks of ``run_episodes`` (``hooks()``),
+    counted per object over the episodes they returned (``counts``). The classes of
+    scripts/episode_outcomes.py, which prints each episode's details."""
+
+    def __init__(self) -> None:
+        self.parts: list[torch.Tensor] = []
+        """Per run, (E,) long: env i's ending (index into ``ENDINGS``; -1: not ended yet)."""
+
+    def hooks(self) -> dict[str, Any]:
+        return {"on_reset": self.on_reset, "on_step": self.on_step,
+                "on_episode": self.on_episode}
+
+    def on_reset(self, env: GraspTask, td: TensorDictBase) -> None:
+        z = env.target_pose()[0][:, 2].cpu()
+        self.start, self.top, self.last = z, z.clone(), z
+        self.parts.append(torch.full((env.num_envs,), -1, dtype=torch.long))
+
+    def on_step(self, env: GraspTask, step: int, td: TensorDictBase) -> None:
+        self.last = env.target_pose()[0][:, 2].cpu()
+        self.top = torch.maximum(self.top, self.last)
+
+    def on_episode(self, env: GraspTask, ended: torch.Tensor, success: torch.Tensor) -> None:
+        ending = self.parts[-1]
+        new = ended & (ending < 0)
+        ending[new] = self._classify(success)[new]
+
+    def _classify(self, success: torch.Tensor) -> torch.Tensor:
+        """(E,) the ending of each env were its episode over now."""
+        out = torch.full_like(self.parts[-1], ENDINGS.index("stalled"))
+        out[self.top - self.last >= DROP] = ENDINGS.index("dropped")
+        out[self.top - self.start < LIFTED_RISE] = ENDINGS.index("never lifted")
+        out[self.last < self.start - KNOCKED_OFF] = ENDINGS.index("knocked off")
+        out[success] = ENDINGS.index("success")
+        return out
+
+    def endings(self) -> torch.Tensor:
+        """(N,) every episode's ending, in the order of the runs (an episode still running at
+        the last action: its state then, never a success)."""
+        if not self.parts:
+            return torch.zeros(0, dtype=torch.long)
+        last = self.parts[-1]
+        open_ = last < 0
+        last[open_] = self._classify(torch.zeros_like(open_))[open_]
+        return torch.cat(self.parts)
+
+    def counts(self, episodes: Episodes, num_objects: int) -> dict[str, list[int]]:
+        """Per ending, per object: the episodes that ended so."""
+        endings = self.endings()
+        return {name: torch.bincount(episodes.target[endings == k],
+                                     minlength=num_objects).tolist()
+                for k, name in enumerate(ENDINGS)}
 
 
 class SuccessPads:
@@ -319,7 +392,9 @@ def write_eval(run: RunDir, result: EvalResult, folder: str = "eval") -> None:
     """``eval/per_object.csv`` (object, episodes, successes, success_rate, then the task as the
     policy saw it: task, bin_objects, context, representation) and ``eval/table.md`` (in
     ``folder`` instead of ``eval/`` when given); with the start poses measured (lift),
-    ``by_start.csv`` (object, face-up episodes and successes, upside-down ones)."""
+    ``by_start.csv`` (object, face-up episodes and successes, upside-down ones); with the
+    endings measured, ``endings.csv`` (object, episodes, then the episodes of each of
+    ``ENDINGS``)."""
     out = run.path / folder
     out.mkdir(parents=True, exist_ok=True)
     if result.face_up is not None:
@@ -329,6 +404,13 @@ def write_eval(run: RunDir, result: EvalResult, folder: str = "eval") -> None:
                              "upside_down_episodes", "upside_down_successes"])
             for k, name in enumerate(result.names):
                 writer.writerow([name, *result.face_up[k], *result.upside_down(k)])
+    if result.endings is not None:
+        with atomic_path(out / "endings.csv") as tmp, open(tmp, "w", newline="") as handle:
+            writer = csv.writer(handle)
+            writer.writerow(["object", "episodes", *(e.replace(" ", "_") for e in ENDINGS)])
+            for k, name in enumerate(result.names):
+                writer.writerow([name, result.episodes[k],
+                                 *(result.endings[e][k] for e in ENDINGS)])
     task = [result.task, result.bin_objects or "", result.context, result.representation]
     pads = result.held is not None and result.nearest_pad is not None
     with atomic_path(out / "per_object.csv") as tmp, open(tmp, "w", newline="") as handle:
@@ -365,6 +447,16 @@ def write_eval(run: RunDir, result: EvalResult, folder: str = "eval") -> None:
             near = result.nearest_pad[k]
             near_text = "—" if near is None else f"{100 * near:.1f} cm"
             lines.append(f"| {name} | {result.successes[k]} | {result.held[k]} | {near_text} |")
+    if result.endings is not None:
+        lines += ["", f"How the episodes ended (the target's centre: never lifted "
+                  f"{100 * LIFTED_RISE:.0f} cm, dropped {100 * DROP:.0f} cm below its highest, "
+                  f"stalled up but short of success, knocked off {100 * KNOCKED_OFF:.0f} cm "
+                  "below its start):", "",
+                  "| object | episodes | " + " | ".join(ENDINGS) + " |",
+                  "|---|---:|" + "---:|" * len(ENDINGS)]
+        for k, name in enumerate(result.names):
+            lines.append(f"| {name} | {result.episodes[k]} | "
+                         + " | ".join(str(result.endings[e][k]) for e in ENDINGS) + " |")
     if result.short:
         lines += ["", f"Fewer episodes than asked after {result.rounds} rounds: "
                   f"{', '.join(result.short)}."]
