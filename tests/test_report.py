@@ -612,3 +612,36 @@ def test_report_command_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, ca
     assert "--eval eval-x --thresholds 0.5,0.7" in text and "| 029_plate | 0.80 (0.93) |" in text
     code, out = invoke("runs/bbox_s0", "--thresholds", "0.5,high")
     assert code != 0 and "--thresholds '0.5,high': give comma-separated success rates" in out
+
+
+def test_worst_objects_pool_the_seeds_endings(run_dirs: list[Path], tmp_path: Path) -> None:
+    """With ``endings.csv`` in the evaluations, the report lists each arm's worst objects
+    (success pooled over its seeds, lowest first) with their episodes by ending; arms without
+    it are left out, and a damaged file leaves its run's endings out instead of stopping."""
+    endings = {  # sq seeds 0 and 1: success, never lifted, dropped (as trainer eval writes)
+        "sq_s0": {"cube": (10, 0, 0), "mug": (8, 1, 1), "plate": (5, 3, 2)},
+        "sq_s1": {"cube": (9, 1, 0), "mug": (6, 4, 0), "plate": (3, 7, 0)},
+    }
+    for name, rows in endings.items():
+        lines = ["object,episodes,success,never_lifted,dropped"]
+        lines += [f"{obj},{sum(row)},{row[0]},{row[1]},{row[2]}" for obj, row in rows.items()]
+        (tmp_path / "runs" / name / "eval" / "endings.csv").write_text("\n".join(lines) + "\n")
+    (tmp_path / "runs" / "sq_s2" / "eval" / "endings.csv").write_text("object,episodes\nx,y\n")
+    runs = [report.load_run(d) for d in run_dirs]
+    assert runs[0].endings == {"cube": {"success": 10, "never lifted": 0, "dropped": 0},
+                               "mug": {"success": 8, "never lifted": 1, "dropped": 1},
+                               "plate": {"success": 5, "never lifted": 3, "dropped": 2}}
+    assert runs[2].endings is None  # damaged: left out
+    table = report.worst_objects_table(runs, count=2)
+    assert table.splitlines()[:5] == [
+        "**sq** (2 seeds, 3 objects):", "",
+        "| object | episodes | success | never lifted | dropped |",
+        "|---|---:|---:|---:|---:|",
+        "| plate | 20 | 8 | 10 | 2 |",
+    ]
+    assert table.splitlines()[5] == "| mug | 20 | 14 | 5 | 1 |" and "com" not in table
+    out = tmp_path / "report"
+    report.write_report(run_dirs, out, worst_count=2)
+    text = (out / "report.md").read_text()
+    assert "## The 2 worst objects of each arm" in text and "| plate | 20 | 8 | 10 | 2 |" in text
+    assert "--worst 2" in text  # the command that made it

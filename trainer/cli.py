@@ -677,9 +677,12 @@ def eval_cmd(
 @click.option("--allow-differ", default="",
               help="Config fields the seeds of one arm may differ in besides the seed and how "
               "they ran, comma-separated (e.g. run.max_minutes): otherwise such runs are split.")
+@click.option("--worst", "worst_count", default=10, show_default=True,
+              help="Objects per arm in the table of the worst objects and how their episodes "
+              "ended (evaluations with endings.csv).")
 def report(
     run_dirs: tuple[Path, ...], out: Path, compare: str | None, eval_dir: str, thresholds: str,
-    allow_differ: str,
+    allow_differ: str, worst_count: int,
 ) -> None:
     """report.md with the paper's Table I (success per object, ours beside the paper's), the
     rank correlation with its ordering, Table II (steps and minutes to THRESHOLDS, env steps per
@@ -698,7 +701,7 @@ def report(
         _run_dir(path)
     from trainer.report import write_report
 
-    for path in write_report(list(run_dirs), out, pair, eval_dir, rates, fields):
+    for path in write_report(list(run_dirs), out, pair, eval_dir, rates, fields, worst_count):
         click.echo(str(path))
 
 

@@ -66,6 +66,9 @@ _DASH = "—"
 
 PAPER_ORDER = ("com", "sdf", "bbox", "sq", "pc32", "pc128", "pc512")
 """The representations in the order of the paper's Table I and II columns / rows."""
+WORST = 10
+"""Objects listed per arm in the report's worst-objects table (the paper's all-78 layout names
+its worst ten)."""
 _REWARD_NOTES = {"com": "reward com", "none": "no shaping"}
 """How a label names a reward kind other than the paper's ``sdf``; ablations ordered thus."""
 
@@ -168,6 +171,9 @@ class Run:
     context: str = "none"
     settings: dict[str, str] = field(default_factory=dict)
     """Every config field but ``NOT_THE_EXPERIMENT``'s: dotted name -> JSON value."""
+    endings: dict[str, dict[str, int]] | None = None
+    """Per object, how its evaluation episodes ended (``endings.csv`` of ``trainer eval``:
+    ending -> episodes; None where the evaluation did not record them)."""
     eval_criterion: str | None = None
     """The success criterion of the evaluation (its table.md's ``Success:`` line without the
     prefix, e.g. "the target lifted by 0.2 m ..."), if stated."""
@@ -238,7 +244,29 @@ def load_run(path: str | Path, eval_dir: str = "eval") -> Run:
         context=config["context"],
         settings=config["settings"],
         eval_criterion=_read_criterion(path / eval_dir / "table.md") if per_object else None,
+        endings=_read_endings(path / eval_dir / "endings.csv") if per_object else None,
     )
+
+
+def _read_endings(path: Path) -> dict[str, dict[str, int]] | None:
+    """``endings.csv`` (object, episodes, one column per ending): object -> ending -> episodes
+    (the column names with spaces for underscores); None if absent or unreadable (an
+    evaluation from before the endings were recorded, or a damaged file: the report leaves
+    the endings out rather than stop)."""
+    if not path.is_file():
+        return None
+    try:
+        with path.open(newline="") as f:
+            rows = list(csv.DictReader(f))
+        out = {row["object"]: {k.replace("_", " "): int(v) for k, v in row.items()
+                               if k not in ("object", "episodes")} for row in rows}
+        # every row: a success column, and endings that add up to its episodes
+        if not rows or any("success" not in by or sum(by.values()) != int(row["episodes"])
+                           for row, by in zip(rows, out.values(), strict=True)):
+            return None
+        return out
+    except (OSError, UnicodeDecodeError, csv.Error, KeyError, TypeError, ValueError):
+        return None
 
 
 def _check_eval_dir(eval_dir: str) -> None:
@@ -972,6 +1000,7 @@ def report_command(
     eval_dir: str = "eval",
     thresholds: Sequence[float] = THRESHOLDS,
     allow_differ: Sequence[str] = (),
+    worst_count: int = WORST,
 ) -> str:
     """The ``trainer report`` command line that writes this report, its paths relative to the
     current directory (options at their defaults left out)."""
@@ -986,6 +1015,8 @@ def report_command(
         args += ["--allow-differ", ",".join(allow_differ)]
     if compare is not None:
         args += ["--compare", ",".join(compare)]
+    if worst_count != WORST:
+        args += ["--worst", str(worst_count)]
     return shlex.join(args)
 
 
@@ -1014,6 +1045,38 @@ def _without(runs: list[Run], allow_differ: Sequence[str]) -> list[Run]:
     return [
         replace(r, settings={k: v for k, v in r.settings.items() if k not in drop}) for r in runs
     ]
+
+
+def worst_objects_table(runs: Sequence[Run], count: int = WORST) -> str:
+    """Per arm whose evaluations recorded how episodes ended: its ``count`` objects of lowest
+    success (episodes pooled over the seeds), each with its episodes by ending, worst first.
+    The empty string when no arm has them."""
+    labels = group_labels(runs)
+    blocks = []
+    for key, members in group_runs(runs).items():
+        ended = [r for r in members if r.endings is not None and r.per_object is not None]
+        if not ended:
+            continue
+        totals: dict[str, dict[str, int]] = {}
+        for run in ended:
+            for name, by_ending in run.endings.items():
+                into = totals.setdefault(name, {})
+                for ending, n in by_ending.items():
+                    into[ending] = into.get(ending, 0) + n
+        endings = list(dict.fromkeys(e for by in totals.values() for e in by))
+        episodes = {name: sum(by.values()) for name, by in totals.items()}
+        rate = {name: by.get("success", 0) / max(1, episodes[name])
+                for name, by in totals.items()}
+        worst = sorted(totals, key=lambda name: (rate[name], name))[:count]
+        seeds = f"{len(ended)} seed{'s' * (len(ended) != 1)}"
+        blocks += [f"**{labels[key]}** ({seeds}, {len(totals)} objects):", "",
+                   "| object | episodes | " + " | ".join(endings) + " |",
+                   "|---|---:|" + "---:|" * len(endings)]
+        blocks += [f"| {name} | {episodes[name]} | "
+                   + " | ".join(str(totals[name].get(e, 0)) for e in endings) + " |"
+                   for name in worst]
+        blocks.append("")
+    return "\n".join(blocks)
 
 
 def _eval_folders(runs: Sequence[Run]) -> list[str]:
@@ -1059,6 +1122,7 @@ def write_report(
     eval_dir: str = "eval",
     thresholds: Sequence[float] = THRESHOLDS,
     allow_differ: Sequence[str] = (),
+    worst_count: int = WORST,
 ) -> list[Path]:
     """Load the runs (their evaluation from the folder ``eval_dir``; seeds may differ in the
     config fields ``allow_differ`` too) and write into ``out_dir``: ``success_vs_steps.png``
@@ -1078,7 +1142,10 @@ def write_report(
     unique = list(dict.fromkeys(Path(d).resolve() for d in run_dirs))
     runs = _without([load_run(d, eval_dir) for d in unique], allow_differ)
     out_dir = Path(out_dir)
-    command = report_command(unique, out_dir, compare, eval_dir, thresholds, allow_differ)
+    if worst_count < 1:
+        raise TrainerError(f"--worst {worst_count}: list at least one object per arm")
+    command = report_command(unique, out_dir, compare, eval_dir, thresholds, allow_differ,
+                             worst_count)
     evaluated = [r for r in runs if r.per_object is not None]
     groups = group_runs(runs)
     labels = group_labels(runs)
@@ -1120,6 +1187,14 @@ def write_report(
     if evaluated:
         parts += [per_object_table(runs), *_table_one_notes(runs, eval_dir, labels)]
         parts += ["## Ranking against the paper", "", ranking_text(paper_ranking(runs)), ""]
+        worst = worst_objects_table(runs, worst_count)
+        if worst:
+            parts += [f"## The {worst_count} worst objects of each arm and how their episodes "
+                      "ended", "",
+                      "From `trainer eval`'s `endings.csv`: the target's centre never rose 1 cm "
+                      "(never lifted), rose and ended 3 cm below its highest (dropped), stayed "
+                      "up short of success (stalled), or ended 5 cm below its start (knocked "
+                      "off the table).", "", worst]
     else:
         found = ", ".join(f"`{name}`" for name in _eval_folders(runs)) or "none"
         parts += [
