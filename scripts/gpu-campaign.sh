@@ -104,12 +104,12 @@ EOF
   { [ -d .gpu-pack/data ] && [ ! -L .gpu-pack/data ]; } || ln -sfn "$STAGE/data" .gpu-pack/data
 fi
 # The cuts of the hand's step measured on the CPU (results/bench-step-phases-2026-11-29/), each
-# alone and the three that keep every grasp together (tip-hulls loses the knife's pinch), and
-# the capsule hand of 2026-11-23 for reference, against the run's own config.
+# alone, the two that keep every grasp together (tip-hulls and no-slip 2 lose some of the knife's
+# pinches), and the capsule hand of 2026-11-23 for reference, against the run's own config.
 CUTS="--variant physics.noslip_iterations=2 --variant physics.table_plane=true \
   --variant robot.hand_geometry=tip-hulls \
   --variant 'warp.contacts_per_world=64 warp.constraints_per_world=256' \
-  --variant 'physics.noslip_iterations=2 physics.table_plane=true warp.contacts_per_world=64 warp.constraints_per_world=256' \
+  --variant 'physics.table_plane=true warp.contacts_per_world=64 warp.constraints_per_world=256' \
   --variant robot.hand_geometry=capsules"
 if [ "$mode" = bench ] || [ "$mode" = phases ]; then
   # What the physics costs in contact: the campaign's policy drives the run's own config and each
