@@ -160,7 +160,7 @@ class RobotConfig(_Checked):
     hand_geometry: str = bounded("hulls", choices=HAND_GEOMETRIES)
     """Collision shapes of the 11 finger and thumb links: ``capsules`` (our estimate),
     ``hulls`` (of the published link meshes, ``trainer/robots/sih_hulls.json``) or ``tip-hulls``
-    (hulls on the distal links, capsules on the proximal ones); the palm is a box
+    (capsules on the proximal links: loses knife pinches); the palm is a box
     (results/graspability-2026-11-25/, results/bench-step-phases-2026-11-29/)."""
     hand_drive: str = bounded("all-joints", choices=HAND_DRIVES)
     """How the 5 servo commands reach the 11 joints: ``equalities`` (5 actuators, followers on
