@@ -200,8 +200,8 @@ def _bins_hold(run_dir: Path) -> tuple[list[str], list[str]]:
     return sorted(held), sorted(set(names) - held)
 
 
-def _per_object(run_dir: Path) -> dict[str, dict[str, str]]:
-    rows = csv.DictReader((run_dir / "eval" / "per_object.csv").read_text().splitlines())
+def _per_object(run_dir: Path, folder: str = "eval") -> dict[str, dict[str, str]]:
+    rows = csv.DictReader((run_dir / folder / "per_object.csv").read_text().splitlines())
     return {row["object"]: row for row in rows}
 
 
@@ -458,3 +458,22 @@ def test_held_out_objects_are_never_trained_on_and_evaluated_apart(
                                      "--run-dir", str(tmp_path / f"bad-{held}")],
                                     monkeypatch, capsys)
         assert code != 0 and message in err and len(err.strip().splitlines()) == 1
+
+
+def test_bin_eval_on_bins_of_another_size(
+    bin_run: Path, lift_run: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
+) -> None:
+    """--bin-objects N: the run's policy on new bins of N objects (the paper's ten-object
+    evaluation of its five-object policy), in eval-binN; a lift run has no bins to resize."""
+    code, out, err = invoke_all(["eval", str(bin_run), "--episodes-per-object", "1",
+                                 "--bin-objects", "6", "--max-rounds", "2"], monkeypatch, capsys)
+    assert code == 0, err
+    assert out.splitlines()[0].startswith("task bin (6 objects per bin), representation bbox")
+    rows = _per_object(bin_run, "eval-bin6")
+    assert {r["bin_objects"] for r in rows.values()} == {"6"}
+    # six objects in every bin of a six-object set: each one is in some bin
+    assert "in none of the run's bins" not in out
+    code, out, err = invoke_all(["eval", str(lift_run), "--bin-objects", "6"], monkeypatch,
+                                capsys)
+    assert code != 0 and "Traceback" not in err
+    assert "is a lift run: only a bin run's evaluation takes a number of objects" in err

@@ -583,6 +583,9 @@ def _resume(run_dir: Path, steps: int | None, minutes: float | None) -> None:
               "never trained on [out: eval-held-out].")
 @click.option("--max-rounds", default=20, show_default=True,
               help="Bin task: rounds of episodes at most, however few an object has.")
+@click.option("--bin-objects", type=int, default=None,
+              help="Bin task: new bins of this many objects, drawn by the run's seed (the paper "
+              "evaluates its 5-object policy on 10) [the run's bins; out: eval-binN].")
 @click.option("--hold-tips", type=int, default=None,
               help="Success: lifted by h_bar with this many fingertip pads on the target (0: "
               "any rise) [the run's reward.hold_tips].")
@@ -607,16 +610,20 @@ def eval_cmd(
     run_dir: Path, episodes_per_object: int, objects: str | None, held_out: bool,
     max_rounds: int, hold_tips: int | None, h_bar: float | None, lift_clearance: float | None,
     iteration: int | None, sample: bool, pads: bool, out: str | None, device: str | None,
+    bin_objects: int | None,
 ) -> None:
     """Success per target object of the deterministic policy (eval/per_object.csv,
     eval/table.md), or with --sample of the policy as it acts in training.
 
     Lift: EPISODES_PER_OBJECT episodes of each object. Bin: the bins the run trained on, rounds
     of new episodes with the targets balanced over the objects, until each object in the bins
-    has been the target at least EPISODES_PER_OBJECT times (or MAX_ROUNDS rounds ran).
+    has been the target at least EPISODES_PER_OBJECT times (or MAX_ROUNDS rounds ran); with
+    --bin-objects, new bins of that many objects.
     """
     _at_least("--episodes-per-object", episodes_per_object, 1)
     _at_least("--max-rounds", max_rounds, 1)
+    if bin_objects is not None:
+        _at_least("--bin-objects", bin_objects, 1)
     _device(device)
     from trainer.evaluation import ENDINGS, evaluate
 
@@ -636,7 +643,7 @@ def eval_cmd(
     result = evaluate(
         _run_dir(run_dir), episodes_per_object, objects, device=device, max_rounds=max_rounds,
         hold_tips=hold_tips, h_bar=h_bar, iteration=iteration, out=out, sample=sample,
-        pads=pads, lift_clearance=lift_clearance,
+        pads=pads, lift_clearance=lift_clearance, bin_objects=bin_objects,
     )
     sampled = " (actions sampled)" if sample else ""
     click.echo(f"{result.describe()}: success per target object{sampled}")

@@ -119,6 +119,7 @@ def evaluate(
     sample: bool = False,
     pads: bool = False,
     lift_clearance: float | None = None,
+    bin_objects: int | None = None,
 ) -> EvalResult:
     """Evaluate the run's last checkpoint (or that of ``iteration``) on its object set (or
     ``objects``), on ``device`` (default: the run's), for the run's task; writes
@@ -137,20 +138,28 @@ def evaluate(
     ``lift_clearance = 0.01`` how many of those lifts raised the lowest point 1 cm (not tips).
 
     Lift: exactly ``episodes_per_object`` episodes of each object. Bin: rounds of episodes on
-    the run's bins (drawn from ``objects`` instead when given), balanced over the targets, until
-    every object in them has been the target ``episodes_per_object`` times or more, at most
-    ``max_rounds`` rounds."""
+    the run's bins (drawn from ``objects`` instead when given; of ``bin_objects`` objects each
+    instead of the run's when given, then written to ``eval-binN`` by default), balanced over
+    the targets, until every object in them has been the target ``episodes_per_object`` times
+    or more, at most ``max_rounds`` rounds."""
     if episodes_per_object < 1:
         raise TrainerError(f"episodes_per_object must be >= 1, got {episodes_per_object}")
     if max_rounds < 1:
         raise TrainerError(f"max_rounds must be >= 1, got {max_rounds}")
+    if bin_objects is not None and bin_objects < 1:
+        raise TrainerError(f"bin_objects must be >= 1, got {bin_objects}")
     if out is None:
         out = "eval-sampled" if sample else "eval"
+        if bin_objects is not None:
+            out = f"{out}-bin{bin_objects}"
     if not out or Path(out).name != out or out in (".", ".."):
         raise TrainerError(f"out {out!r}: give a folder name inside the run directory, e.g. eval")
     session = EvalSession.load(run_dir, device, iteration, h_bar=h_bar, hold_tips=hold_tips,
                                lift_clearance=lift_clearance)
     cfg = session.cfg
+    if bin_objects is not None and cfg.env.task != "bin":
+        raise TrainerError(f"{run_dir} is a {cfg.env.task} run: only a bin run's evaluation "
+                           "takes a number of objects per bin")
     names = session.names(objects)
     collector = SuccessPads() if pads else None
     start_up, endings = StartsFaceUp(), EpisodeEndings()
@@ -160,7 +169,7 @@ def evaluate(
         if cfg.env.task == "bin":
             result, episodes = _evaluate_bin(
                 session, names, episodes_per_object, seed, max_envs, max_rounds, not sample,
-                hooks,
+                hooks, bin_objects,
             )
         else:
             episodes = session.lift_episodes(names, episodes_per_object, seed,
@@ -359,11 +368,12 @@ def balanced_targets(assignment: torch.Tensor, counts: torch.Tensor) -> torch.Te
 def _evaluate_bin(
     session: EvalSession, names: list[str], episodes_per_object: int, seed: int,
     max_envs: int, max_rounds: int, deterministic: bool = True, hooks: dict | None = None,
+    bin_objects: int | None = None,
 ) -> tuple[EvalResult, Episodes]:
     """The bin evaluation's rounds on the run's bins: the result, and every round's episodes
     one after another (their ``target`` an index into ``names``)."""
     cfg = session.cfg
-    env = session.bin_env(min(cfg.env.num_envs, max_envs), names)
+    env = session.bin_env(min(cfg.env.num_envs, max_envs), names, bin_objects)
     env.set_seed(seed)
     assignment = env.assignment.cpu()
     held = torch.zeros(len(names), dtype=torch.bool)
@@ -382,7 +392,7 @@ def _evaluate_bin(
     absent = [n for k, n in enumerate(names) if not held[k]]
     result = EvalResult(
         names, episodes.tolist(), successes.tolist(), task="bin",
-        representation=cfg.env.representation, bin_objects=cfg.env.bin.num_objects,
+        representation=cfg.env.representation, bin_objects=env.cfg.bin.num_objects,
         context=cfg.env.context, rounds=len(parts), short=short, absent=absent,
     )
     return result, Episodes.cat(parts)

@@ -237,11 +237,18 @@ class EvalSession:
             warnings.simplefilter("ignore")
             return make_env(cfg, seed=seed)
 
-    def bin_env(self, num_envs: int, objects: Sequence[str] | None = None) -> GraspTask:
+    def bin_env(self, num_envs: int, objects: Sequence[str] | None = None,
+                bin_objects: int | None = None) -> GraspTask:
         """The bin env of a bin run with ``num_envs`` envs: the bins the run trained on (its
         seed draws the same layouts, whose settled states are cached), from ``objects``
-        instead of the run's object set when given. Seed its episodes with ``env.set_seed``."""
-        return make_env(self.env_config(num_envs, objects), seed=run_streams(self.cfg))
+        instead of the run's object set when given, with ``bin_objects`` objects per bin
+        instead of the run's (new bins of that size, drawn by the run's seed; the paper
+        evaluates its five-object policy on ten-object bins). Seed its episodes with
+        ``env.set_seed``."""
+        changes = {}
+        if bin_objects is not None:
+            changes["bin"] = dataclasses.replace(self.cfg.env.bin, num_objects=bin_objects)
+        return make_env(self.env_config(num_envs, objects, **changes), seed=run_streams(self.cfg))
 
     @staticmethod
     def lift_batches(names: Sequence[str], episodes_per_object: int,
