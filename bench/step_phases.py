@@ -47,6 +47,7 @@ import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from trainer.assets.collision import BIT_ARM, BIT_HAND, BIT_OBJECT, BIT_STATIC
+from trainer.assets.scene import hand_geoms
 from trainer.config import check_backend, check_device, dotted_overrides, override
 from trainer.config_keys import parse_sets
 from trainer.errors import TrainerError
@@ -92,8 +93,9 @@ def hand_links(model: mujoco.MjModel) -> np.ndarray:
     """(ngeom,) str: the body name of each hand geom (``palm``, ``if_distal``, ...), ``-`` for
     the rest."""
     out = np.full(model.ngeom, "-", dtype=object)
-    for g in np.flatnonzero((model.geom_contype & BIT_HAND) != 0):
-        out[g] = model.body(int(model.geom_bodyid[g])).name
+    for g in hand_geoms(model):
+        if model.geom_contype[g] or model.geom_conaffinity[g]:  # it collides
+            out[g] = model.body(int(model.geom_bodyid[g])).name
     return out
 
 

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # One long run in chunks that outlive a work session: the bin pair of issue 63
-# (results/cpu-bin-table1-2026-11-29/) and the 78 together of issue 62 (configs/cpu-ycb.toml).
+# (results/cpu-bin-table1-2026-11-29/), the 78 together of issue 62 (configs/cpu-ycb.toml) and
+# each arm of the comparison (scripts/comparison_runs.sh).
 #
 #   scripts/chunked_run.sh RESULTS_DIR NAME CONFIG MINUTES BUDGET_MINUTES [TRAINER_RUN_ARGS...]
 #
@@ -8,8 +9,8 @@
 # starts from CONFIG with the extra `trainer run` arguments), trains until its training time in
 # all reaches MINUTES (`trainer run --minutes`), then copies back what the next chunk needs
 # (config.json, metrics.csv, grasp_starts.pt, checkpoints/last.pt) and evaluates the chunk:
-# CHUNK_EPISODES (20) episodes per object into eval-<env steps>M/. Once the run has trained
-# BUDGET_MINUTES (or reached its total_steps) it is evaluated with FINAL_EPISODES (50) per
+# CHUNK_EPISODES (20; 0: none) episodes per object into eval-<env steps>M/. Once the run has
+# trained BUDGET_MINUTES (or reached its total_steps) it is evaluated, once, with FINAL_EPISODES (50) per
 # object into eval/ (what `trainer report` reads), and a bin run also on bins of BIN_EVAL (10)
 # objects into eval-bin10/. With VIDEO_OBJECT set, each chunk also films the policy's picks of
 # that object (the successes first) into RESULTS_DIR/media/NAME-<env steps>M.mp4. Stop a chunk
@@ -60,13 +61,15 @@ print(f"{steps / 1e6:.1f}", int(done), config["env"].get("task", "lift"))
 EOF
 )
 echo "== $NAME: saved to $SAVED (${STEPS} M env steps)"
-if [ "$DONE" = 1 ]; then
+if [ "$DONE" = 1 ] && [ -f "$SAVED/eval/per_object.csv" ]; then
+  echo "== $NAME: at its budget and evaluated already ($SAVED/eval)"
+elif [ "$DONE" = 1 ]; then
   trainer eval "$RUN" --episodes-per-object "${FINAL_EPISODES:-50}" && cp -r "$RUN/eval" "$SAVED/"
   if [ "$TASK" = bin ]; then
     trainer eval "$RUN" --episodes-per-object "${FINAL_EPISODES:-50}" --bin-objects "${BIN_EVAL:-10}" \
       && cp -r "$RUN/eval-bin${BIN_EVAL:-10}" "$SAVED/"
   fi
-else
+elif [ "${CHUNK_EPISODES:-20}" -gt 0 ]; then
   trainer eval "$RUN" --episodes-per-object "${CHUNK_EPISODES:-20}" --out "eval-${STEPS}M" \
     && cp -r "$RUN/eval-${STEPS}M" "$SAVED/"
 fi

@@ -27,30 +27,9 @@ for ARM in "$@"; do
     shared) SETS=(--set ppo.shared_encoder=true) ;;
     *) echo "$ARM: unknown variant '$VARIANT' (known: shared)" >&2; exit 2 ;;
   esac
-  RUN=runs/cmp-$ARM
-  SAVED=$HERE/runs/cmp-$ARM
-  if [ ! -d "$RUN" ] && [ -f "$SAVED/checkpoints/last.pt" ]; then
-    mkdir -p runs && cp -r "$SAVED" "$RUN"
-  fi
-  echo "== $ARM: $(date -u +%FT%TZ)"
-  if [ -f "$RUN/checkpoints/last.pt" ]; then
-    trainer run --resume "$RUN" --minutes "$MINUTES"
-  else
-    trainer run --config "$HERE/comparison.toml" --repr "$REPR" --reward "$REWARD" \
-      --seed "${SEED#s}" --data-dir data --run-dir "$RUN" --minutes "$MINUTES" "${SETS[@]}"
-  fi
-  if [ -f "$RUN/checkpoints/last.pt" ]; then
-    mkdir -p "$SAVED/checkpoints"
-    cp "$RUN/config.json" "$RUN/metrics.csv" "$RUN/grasp_starts.pt" "$SAVED/" 2>/dev/null
-    cp "$RUN/checkpoints/last.pt" "$SAVED/checkpoints/last.pt"
-    echo "== $ARM: saved to $SAVED ($(tail -1 "$RUN/metrics.csv" | cut -d, -f2) env steps)"
-  fi
-  # At the budget: the evaluation (50 episodes per object from home), once, kept beside.
-  if [ -f "$RUN/checkpoints/last.pt" ] && [ ! -f "$SAVED/eval/per_object.csv" ] && python -c "
-import csv, json, sys
-rows = list(csv.DictReader(open('$RUN/metrics.csv')))
-total = json.load(open('$RUN/config.json'))['run']['total_steps']
-sys.exit(0 if rows and int(rows[-1]['env_steps']) >= total else 1)"; then
-    trainer eval "$RUN" --episodes-per-object 50 && cp -r "$RUN/eval" "$SAVED/"
-  fi
+  # The arm's chunk, kept in results/ (chunked_run.sh): its budget is its total_steps, so
+  # no budget in minutes, and no evaluation until then (at it: 50 episodes per object).
+  CHUNK_EPISODES=0 FINAL_EPISODES=50 "$ROOT/scripts/chunked_run.sh" "$HERE" "cmp-$ARM" \
+    "$HERE/comparison.toml" "$MINUTES" 1000000000 --repr "$REPR" --reward "$REWARD" \
+    --seed "${SEED#s}" "${SETS[@]}"
 done

@@ -26,12 +26,13 @@ from pathlib import Path
 import torch
 from tensordict import TensorDictBase
 
+from trainer.evaluation import ENDINGS, classify_endings
 from trainer.grasps import keypoint_distances
 from trainer.grasps.outcomes import HELD_DISTANCE
 from trainer.session import EvalSession
 from trainer.tasks import GraspTask
 
-CLASSES = ("success", "never lifted", "dropped", "stalled")
+CLASSES = ENDINGS[:-1]  # ("success", "never lifted", "dropped", "stalled"): not knocked off
 
 
 @dataclasses.dataclass
@@ -51,14 +52,11 @@ class Episode:
 
 
 def classify(rise: torch.Tensor, success: bool, lifted: float, drop: float) -> str:
-    """The class of one episode from its (T,) centre rise (m) up to its end."""
-    if success:
-        return "success"
-    if float(rise.max()) < lifted:
-        return "never lifted"
-    if float(rise[-1]) < float(rise.max()) - drop:
-        return "dropped"
-    return "stalled"
+    """The class of one episode from its (T,) centre rise (m) up to its end (``trainer
+    eval``'s ``classify_endings``, without its knocked-off class)."""
+    index = classify_endings(torch.zeros(1), rise.max()[None], rise[-1:],
+                             torch.tensor([success]), lifted, drop, knocked_off=None)
+    return ENDINGS[int(index[0])]
 
 
 def outcomes(run_dir: Path, envs: int = 50, seed: int = 11, h_bar: float | None = None,

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from geomprep.config import Config
+from tests.tiny_runs import tiny_run
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "bench" / "step_phases.py"
@@ -31,17 +32,7 @@ def _section(lines: list[str], title: str) -> dict[str, list[str]]:
 
 
 def test_phases_and_contacts_at_the_same_states(builtin_data: Config, tmp_path: Path) -> None:
-    from trainer.config import load_train_config
-    from trainer.ppo import train
-
-    cfg = load_train_config(
-        env={"num_envs": 2, "objects": "builtin_box", "representation": "bbox",
-             "data_dir": builtin_data.data_dir, "max_steps": 12, "compile": False},
-        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
-             "hidden": (16, 16)},
-        run={"total_steps": 16, "checkpoint_every": 1, "seed": 0},
-    )
-    run = train(cfg, tmp_path / "run", progress=False)
+    run = tiny_run(builtin_data, tmp_path / "run", "builtin_box", compile=False)
     done = bench("--policy", str(run.path), "--envs", "3", "--advance", "3", "--steps", "2",
                  "--rounds", "2", "--variant", "physics.table_plane=true")
     assert done.returncode == 0, done.stderr[-2000:]

@@ -244,14 +244,30 @@ KNOCKED_OFF = 0.05
 """A target that ended this far (m) below where it started left the table: ``knocked off``."""
 
 
+def classify_endings(
+    start: torch.Tensor, top: torch.Tensor, last: torch.Tensor, success: torch.Tensor,
+    lifted: float = LIFTED_RISE, drop: float = DROP, knocked_off: float | None = KNOCKED_OFF,
+) -> torch.Tensor:
+    """(E,) each episode's ending (an index into ``ENDINGS``) from its target centre's height
+    (m) at the start, its highest and at the end, and whether it succeeded: ``success``; then
+    ``knocked off`` (ended ``knocked_off`` below its start; None: not a class); ``never
+    lifted`` (never rose ``lifted``); ``dropped`` (ended more than ``drop`` below its highest);
+    else ``stalled``."""
+    out = torch.full(success.shape, ENDINGS.index("stalled"), dtype=torch.long)
+    out[last < top - drop] = ENDINGS.index("dropped")
+    out[top - start < lifted] = ENDINGS.index("never lifted")
+    if knocked_off is not None:
+        out[last < start - knocked_off] = ENDINGS.index("knocked off")
+    out[success] = ENDINGS.index("success")
+    return out
+
+
 class EpisodeEndings:
-    """Per episode, how it ended, by the target centre's height over the episode: ``success``;
-    ``knocked off`` (ended ``KNOCKED_OFF`` below its start: off the table); ``never lifted``
-    (never rose ``LIFTED_RISE``); ``dropped`` (rose, then ended ``DROP`` below its highest
-    point); ``stalled`` (rose and stayed up, but not to the lift height or not held). The
+    """Per episode, how it ended (``classify_endings``: success, knocked off the table, never
+    lifted, dropped, or stalled up short of success), by the target centre's height. The
     ``on_reset``, ``on_step`` and ``on_episode`` hooks of ``run_episodes`` (``hooks()``),
-    counted per object over the episodes they returned (``counts``). The classes of
-    scripts/episode_outcomes.py, which prints each episode's details."""
+    counted per object over the episodes they returned (``counts``). scripts/episode_outcomes.py
+    prints each episode's details with the same classes."""
 
     def __init__(self) -> None:
         self.parts: list[torch.Tensor] = []
@@ -277,12 +293,7 @@ class EpisodeEndings:
 
     def _classify(self, success: torch.Tensor) -> torch.Tensor:
         """(E,) the ending of each env were its episode over now."""
-        out = torch.full_like(self.parts[-1], ENDINGS.index("stalled"))
-        out[self.top - self.last >= DROP] = ENDINGS.index("dropped")
-        out[self.top - self.start < LIFTED_RISE] = ENDINGS.index("never lifted")
-        out[self.last < self.start - KNOCKED_OFF] = ENDINGS.index("knocked off")
-        out[success] = ENDINGS.index("success")
-        return out
+        return classify_endings(self.start, self.top, self.last, success)
 
     def endings(self) -> torch.Tensor:
         """(N,) every episode's ending, in the order of the runs (an episode still running at

@@ -38,6 +38,7 @@ import json
 import math
 import os
 import shlex
+from collections import Counter
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -1057,12 +1058,10 @@ def worst_objects_table(runs: Sequence[Run], count: int = WORST) -> str:
         ended = [r for r in members if r.endings is not None and r.per_object is not None]
         if not ended:
             continue
-        totals: dict[str, dict[str, int]] = {}
+        totals: dict[str, Counter[str]] = {}
         for run in ended:
             for name, by_ending in run.endings.items():
-                into = totals.setdefault(name, {})
-                for ending, n in by_ending.items():
-                    into[ending] = into.get(ending, 0) + n
+                totals.setdefault(name, Counter()).update(by_ending)
         endings = list(dict.fromkeys(e for by in totals.values() for e in by))
         episodes = {name: sum(by.values()) for name, by in totals.items()}
         rate = {name: by.get("success", 0) / max(1, episodes[name])
@@ -1139,11 +1138,11 @@ def write_report(
     _check_eval_dir(eval_dir)
     _check_thresholds(thresholds)
     # The same directory given twice (e.g. overlapping globs) would count as an extra seed.
+    if worst_count < 1:
+        raise TrainerError(f"--worst {worst_count}: list at least one object per arm")
     unique = list(dict.fromkeys(Path(d).resolve() for d in run_dirs))
     runs = _without([load_run(d, eval_dir) for d in unique], allow_differ)
     out_dir = Path(out_dir)
-    if worst_count < 1:
-        raise TrainerError(f"--worst {worst_count}: list at least one object per arm")
     command = report_command(unique, out_dir, compare, eval_dir, thresholds, allow_differ,
                              worst_count)
     evaluated = [r for r in runs if r.per_object is not None]
