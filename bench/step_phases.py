@@ -27,7 +27,8 @@ Both print the contacts per env by part pair (``hand``: finger/thumb hulls and p
 ``object``: the object's convex pieces, ``static``: table, bin), by geom-type pair and by hand
 link (which links touch anything: where the hulls matter), and the constraint rows per env. The
 configurations are timed in alternating rounds and each phase's time is its least over the
-rounds (a busy machine only adds): compare configurations within one run, not across runs.
+rounds (a busy machine only adds), each step's time also as a ratio to the run's own (the
+baseline): compare configurations within one run, not across runs.
 
     python bench/step_phases.py --policy RUN [--backend cpu|warp] [--device cpu|cuda] \\
         [--envs 32] [--advance 150] [--steps 10] [--repeats 5] [--rounds 3] [--data-dir DIR] \\
@@ -359,6 +360,9 @@ def main(argv: list[str] | None = None) -> None:
     unit = ("microseconds per env and physics step (MuJoCo C, one thread)" if args.backend == "cpu"
             else "milliseconds per physics step of all worlds (MuJoCo Warp)")
     table(f"time by phase, {unit}", times, ".1f" if args.backend == "cpu" else ".3f")
+    base = times[configs[0][0]]["step"]  # the baseline: the run's own, timed in the same rounds
+    print("step / the run's own".rjust(24)
+          + "".join(f"{t['step'] / base:>12.2f}" for t in times.values()))
     table("contacts per env by part pair (and constraint rows)", parts, ".2f")
     table("contacts per env by geom-type pair", types, ".2f")
     table("contacts per env of each hand link with an object or fixture", links, ".2f")

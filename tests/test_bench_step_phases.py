@@ -41,6 +41,8 @@ def test_phases_and_contacts_at_the_same_states(builtin_data: Config, tmp_path: 
     times = _section(lines, "time by phase")
     assert float(times["step"][0]) > 0 and float(times["narrowphase"][0]) > 0
     assert float(times["step"][0]) >= float(times["solver+noslip"][0])
+    ratio = next(line for line in lines if "step / the run's own" in line).split()[-2:]
+    assert float(ratio[0]) == 1.0 and float(ratio[1]) > 0  # the baseline against itself
     parts = _section(lines, "contacts per env by part pair")
     # the box rests on the table in every env, in both configurations (the same states)
     assert float(parts["object-static"][0]) >= 1 and float(parts["object-static"][1]) >= 1
