@@ -286,6 +286,8 @@ def measure_object(
 
     if searched.read_object(cfg.data_dir, name).get(searched.hand_key(cfg)) is not None:
         source = "data directory"
+    elif searched.shipped_object(name).get(searched.hand_key(cfg)) is not None:
+        source = "shipped per hand"
     elif name in searched.load_searched()["objects"]:
         source = "shipped seed"
     else:

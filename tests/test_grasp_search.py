@@ -4,6 +4,7 @@ writes what the family reads, and its errors are one line."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import sys
 from pathlib import Path
@@ -364,3 +365,39 @@ def test_searched_grasps_lift_their_objects(tmp_path_factory: pytest.TempPathFac
     rows = measure("searched", "base", FAMILIES["searched"].variants["base"], SEARCHED_OBJECTS,
                    10, seed=0, data_dir=data.data_dir)
     assert all(r["lifted"] >= 8 for r in rows), rows
+
+
+_SHIP_PATH = Path(__file__).parents[1] / "scripts" / "ship_searched_grasps.py"
+_SHIP_SPEC = importlib.util.spec_from_file_location("ship_searched_grasps", _SHIP_PATH)
+ship_script = importlib.util.module_from_spec(_SHIP_SPEC)
+_SHIP_SPEC.loader.exec_module(ship_script)
+
+
+def test_shipped_grasps_spare_a_fresh_data_directory_the_search(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A grasp shipped for a hand key (``scripts/ship_searched_grasps.py``) is found by a run
+    of that hand with an empty data directory, without its search history; a data-directory
+    grasp of the same key comes first; another hand does not get it; nothing to ship is a
+    one-line error."""
+    searched_dir, fresh = tmp_path / "searched", tmp_path / "fresh"
+    cfg = load_env_config(data_dir=searched_dir)
+    mine = {"theta": {p: 0.01 * i for i, p in enumerate(PARAMS)}, "lifted": 20,
+            "history": [{"iteration": 0}]}
+    searched.write_entry(searched_dir, "builtin_box", searched.hand_key(cfg), mine)
+    target = tmp_path / "searched_by_hand.json"
+    with pytest.raises(TrainerError, match="no searched grasp for hand key"):
+        ship_script.ship(fresh, searched.hand_key(cfg), "results/x", target)
+    assert ship_script.ship(searched_dir, searched.hand_key(cfg), "results/x", target) == 1
+    monkeypatch.setattr(searched, "SHIPPED_PATH", target)
+    fresh_cfg = load_env_config(data_dir=fresh)
+    shipped = {k: v for k, v in mine.items() if k != "history"}
+    assert searched.grasp_for(fresh_cfg, "builtin_box") == shipped
+    assert searched.data_rows(_FakeEnv(fresh_cfg, ["builtin_box", "builtin_dice"])) == {
+        "builtin_box": searched.theta_row(mine)}
+    other = load_env_config(data_dir=fresh, physics={"noslip_iterations": 0})
+    assert searched.grasp_for(other, "builtin_box") is None
+    own = {"theta": {p: 0.02 for p in PARAMS}}
+    searched.write_entry(fresh, "builtin_box", searched.hand_key(cfg), own)
+    assert searched.grasp_for(fresh_cfg, "builtin_box") == own
+    assert json.loads(target.read_text())["sources"] == {searched.hand_key(cfg): "results/x"}

@@ -5,6 +5,10 @@ family reads them.
   hand and physics it was searched with (``hand_key``: the resolved ``[robot]`` and
   ``[physics]`` sections). ``trainer grasp-search`` writes there by default; never into the
   installed package.
+- **The shipped grasps per hand**, ``searched_by_hand.json`` beside this module (read-only):
+  data-directory entries shipped with the package (``scripts/ship_searched_grasps.py``), so
+  that a fresh machine need not search them again (2-3 minutes of one core per object):
+  ``{"sources": {hand_key: str}, "grasps": {name: {hand_key: entry}}}``.
 - **The shipped seed**, ``searched.json`` beside this module (read-only): the grasps the
   ``searched`` family was measured with (results/graspability-search-2026-11-26/), one
   configuration for all objects: ``{"config": {...}, "objects": {name: entry}}``. ``trainer
@@ -12,13 +16,14 @@ family reads them.
 
 An entry is ``{"theta": {param: value}, "lifted", "final_trials", "search", "history"}`` (and
 ``earlier``: the searches a ``--refine`` continued). The ``searched`` family's keyframe grasp
-takes each object's row from the data directory's entry for the env's hand and physics where
-there is one (``data_rows``), else from the seed.
+takes each object's row from the entry for the env's hand and physics where there is one (the
+data directory's, else the shipped one: ``data_rows``), else from the seed.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 from pathlib import Path
@@ -35,6 +40,8 @@ if TYPE_CHECKING:
 SEARCHED_PATH = Path(__file__).with_name("searched.json")
 """The shipped seed: the grasps ``trainer grasp-search`` found, per object, and the
 configuration (hand, physics) they were searched and measured with (read-only)."""
+SHIPPED_PATH = Path(__file__).with_name("searched_by_hand.json")
+"""Searched grasps shipped per object and hand key (``scripts/ship_searched_grasps.py``)."""
 STORE = Path("grasps") / "searched"
 """The searched grasps' folder in a data directory (one file per object)."""
 _SCRIPT_ONLY = ("hand_action", "hand_relative_step")
@@ -100,6 +107,33 @@ def read_object(data_dir: Path, name: str) -> dict[str, dict[str, Any]]:
     return grasps
 
 
+@functools.cache
+def _shipped(path: Path) -> dict[str, dict[str, dict[str, Any]]]:
+    if not path.is_file():
+        return {}
+    try:
+        grasps = json.loads(path.read_text())["grasps"]
+        for entries in grasps.values():
+            _check_entries(entries)
+    except (ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise _damaged(path, exc) from None
+    return grasps
+
+
+def shipped_object(name: str, path: Path | None = None) -> dict[str, dict[str, Any]]:
+    """Object ``name``'s searched grasps shipped with the package (``SHIPPED_PATH``):
+    ``hand_key`` -> entry."""
+    return _shipped(path or SHIPPED_PATH).get(name, {})
+
+
+def entry_for(cfg: EnvConfig, name: str) -> dict[str, Any] | None:
+    """Object ``name``'s searched grasp for ``cfg``'s hand and physics (``hand_key``): the data
+    directory's, else the package's shipped one, else None."""
+    key = hand_key(cfg)
+    found = read_object(cfg.data_dir, name).get(key)
+    return found if found is not None else shipped_object(name).get(key)
+
+
 def write_entry(data_dir: Path, name: str, key: str, entry: dict[str, Any]) -> Path:
     """Store ``entry`` as object ``name``'s grasp for the hand and physics ``key`` (replacing
     the one of that key, keeping the others); returns the file."""
@@ -113,8 +147,9 @@ def write_entry(data_dir: Path, name: str, key: str, entry: dict[str, Any]) -> P
 
 def grasp_for(cfg: EnvConfig, name: str) -> dict[str, Any] | None:
     """The grasp the ``searched`` family runs on object ``name`` with ``cfg``'s hand and
-    physics: the data directory's entry of that key, else the seed's, else None."""
-    found = read_object(cfg.data_dir, name).get(hand_key(cfg))
+    physics: ``entry_for`` (the data directory's or the shipped one of that key), else the
+    seed's, else None."""
+    found = entry_for(cfg, name)
     return found if found is not None else load_searched()["objects"].get(name)
 
 
@@ -124,13 +159,12 @@ def theta_row(entry: dict[str, Any]) -> tuple[float, ...]:
 
 
 def data_rows(env: GraspTask) -> dict[str, tuple[float, ...]]:
-    """Object name -> parameters, for the objects of ``env`` that have a grasp in its data
-    directory searched with its hand and physics (``KeyframeGrasp.extra_rows`` of the
-    ``searched`` family)."""
-    key = hand_key(env.cfg)
+    """Object name -> parameters, for the objects of ``env`` that have a grasp searched with its
+    hand and physics (``entry_for``: in its data directory or shipped;
+    ``KeyframeGrasp.extra_rows`` of the ``searched`` family)."""
     rows = {}
     for name in env.objects.names:
-        entry = read_object(env.cfg.data_dir, name).get(key)
+        entry = entry_for(env.cfg, name)
         if entry is not None:
             rows[name] = theta_row(entry)
     return rows
