@@ -243,6 +243,35 @@ def test_the_hand_key_is_the_hand_and_the_physics() -> None:
     assert searched.hand_key(load_env_config(**load_searched()["config"])) == key
 
 
+def test_a_field_added_at_its_neutral_default_keeps_the_cached_grasps(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A grasp stored before ``physics.table_plane`` existed (its stored hand and physics lack
+    the field) is found by today's config at the field's neutral value (False), not by one
+    that turns it on; the recorded starts' cache key leaves the field out the same way."""
+    import trainer.config
+    from trainer.config import NEUTRAL_DEFAULTS, load_train_config
+    from trainer.training.grasp_starts import starts_key
+
+    assert NEUTRAL_DEFAULTS["env.physics.table_plane"] is False
+    cfg = load_env_config(data_dir=tmp_path)
+    before = searched.hand_and_physics(cfg)
+    del before["physics"]["table_plane"]
+    entry = {"theta": {p: 0.0 for p in PARAMS}, "hand_and_physics": before}
+    searched.write_entry(tmp_path, "builtin_box", "stored-before-the-field", entry)
+    assert searched.grasp_for(cfg, "builtin_box") == entry
+    assert searched.hand_key(cfg) == searched.key_of(before)
+    plane = load_env_config(data_dir=tmp_path, physics={"table_plane": True})
+    assert searched.grasp_for(plane, "builtin_box") is None
+    run = load_train_config(None)
+    grasps: dict = {}
+    on = load_train_config(None, sets={"physics.table_plane": True})
+    key = starts_key(run, grasps)
+    assert key != starts_key(on, grasps)
+    monkeypatch.setattr(trainer.config, "NEUTRAL_DEFAULTS", {})
+    assert starts_key(run, grasps) != key  # the field counts once it is not neutral
+
+
 def test_committed_searched_grasps_are_complete() -> None:
     """The package's searched grasps (``searched.json``) name their configuration and have
     every parameter and the lifts they were measured with; the family runs them."""
@@ -253,6 +282,23 @@ def test_committed_searched_grasps_are_complete() -> None:
         assert 0 <= entry["lifted"] <= entry["final_trials"], name
         assert all(abs(entry["theta"][f"closed{i}"]) <= 1 for i in range(5)), name
     assert fam.variants["base"].env == data["config"]
+
+
+def test_grasps_shipped_per_hand_are_found_by_the_ycb_preset() -> None:
+    """``searched_by_hand.json`` holds searched grasps with their hand and physics, under
+    the key those give today, for the hand of ``configs/cpu-ycb.toml`` (the 78 together), and
+    names the measurement they come from."""
+    data = json.loads(searched.SHIPPED_PATH.read_text())
+    root = Path(__file__).parents[1]
+    ycb = load_env_config(root / "configs" / "cpu-ycb.toml")
+    assert (root / data["sources"][searched.hand_key(ycb)]).is_dir()
+    assert len(data["grasps"]) >= 60
+    for name, entries in data["grasps"].items():
+        for key, entry in entries.items():
+            assert key == searched.key_of(entry["hand_and_physics"]), name
+            assert 0 <= entry["lifted"] <= entry["final_trials"], name
+            assert "history" not in entry, name
+        assert searched.shipped_object(name).get(searched.hand_key(ycb)) is not None, name
 
 
 def test_best_families_group_objects_and_carry_the_hand() -> None:

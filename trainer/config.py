@@ -715,6 +715,25 @@ config.json predates the field ran with this value (success was any rise by h_ba
 today's default. ``trainer report`` groups such runs by it; ``--resume`` refuses them."""
 
 
+NEUTRAL_DEFAULTS: dict[str, Any] = {"env.physics.table_plane": False}
+"""Config fields added with a default that does what configs did before them (dotted name ->
+that default). Cache keys (searched grasps, recorded grasp starts) leave such a field out while
+it holds that value, so what was cached before the field existed is still found."""
+
+
+def without_neutral(values: dict[str, Any], prefix: str = "env") -> dict[str, Any]:
+    """``values`` (a config section as nested dicts, named ``prefix``) less the
+    ``NEUTRAL_DEFAULTS`` fields that hold their neutral value (a copy; ``values`` is kept)."""
+    out = {}
+    for key, value in values.items():
+        dotted = f"{prefix}.{key}"
+        if isinstance(value, dict):
+            out[key] = without_neutral(value, dotted)
+        elif dotted not in NEUTRAL_DEFAULTS or NEUTRAL_DEFAULTS[dotted] != value:
+            out[key] = value
+    return out
+
+
 def predated_fields(path: Path) -> dict[str, Any]:
     """The ``ABSENT_MEANS`` fields (dotted name -> the value the run ran with) that a run
     directory's config.json lacks."""

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from geomgrasp.files import atomic_path
-from trainer.config import EnvConfig
+from trainer.config import EnvConfig, without_neutral
 from trainer.errors import TrainerError
 from trainer.grasps.keyframes import PARAMS
 
@@ -51,10 +51,26 @@ absolute hand targets: ``runner.script_config``)."""
 
 def hand_key(cfg: EnvConfig) -> str:
     """The hand and physics of ``cfg`` as a short hash: the resolved ``[robot]`` (less how a
-    policy's hand actions are read) and ``[physics]`` sections. A grasp searched with one key
-    is used only where the env's key is the same."""
-    payload = json.dumps(hand_and_physics(cfg), sort_keys=True)
+    policy's hand actions are read) and ``[physics]`` sections, less the fields that hold a
+    neutral default (``trainer.config.NEUTRAL_DEFAULTS``). A grasp searched with one key is
+    used only where the env's key is the same."""
+    return key_of(hand_and_physics(cfg))
+
+
+def key_of(hand_physics: dict[str, Any]) -> str:
+    """The ``hand_key`` of a ``hand_and_physics`` dict (as stored beside each entry)."""
+    payload = json.dumps(without_neutral(hand_physics), sort_keys=True)
     return hashlib.sha256(payload.encode()).hexdigest()[:16]
+
+
+def _rekeyed(grasps: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """``grasps`` keyed by today's ``key_of`` their stored hand and physics (an entry without
+    one keeps its key): a grasp searched before a neutral field existed keeps being found."""
+    out = {}
+    for key, entry in grasps.items():
+        stored = entry.get("hand_and_physics")
+        out[key_of(stored) if isinstance(stored, dict) else key] = entry
+    return out
 
 
 def hand_and_physics(cfg: EnvConfig) -> dict[str, Any]:
@@ -102,9 +118,9 @@ def read_object(data_dir: Path, name: str) -> dict[str, dict[str, Any]]:
     try:
         grasps = json.loads(path.read_text())["grasps"]
         _check_entries(grasps)
+        return _rekeyed(grasps)
     except (ValueError, KeyError, TypeError, AttributeError) as exc:
         raise _damaged(path, exc) from None
-    return grasps
 
 
 @functools.cache
@@ -115,9 +131,9 @@ def _shipped(path: Path) -> dict[str, dict[str, dict[str, Any]]]:
         grasps = json.loads(path.read_text())["grasps"]
         for entries in grasps.values():
             _check_entries(entries)
+        return {name: _rekeyed(entries) for name, entries in grasps.items()}
     except (ValueError, KeyError, TypeError, AttributeError) as exc:
         raise _damaged(path, exc) from None
-    return grasps
 
 
 def shipped_object(name: str, path: Path | None = None) -> dict[str, dict[str, Any]]:

@@ -37,7 +37,7 @@ from typing import Any
 import torch
 from tensordict import TensorDict
 
-from trainer.config import EnvConfig, TrainConfig
+from trainer.config import EnvConfig, TrainConfig, without_neutral
 from trainer.grasps.families import BEST, best_variants, variants
 from trainer.grasps.keyframes import KeyframeGrasp
 from trainer.grasps.runner import episode_config, run_scripted_grasp
@@ -76,9 +76,11 @@ def object_grasps(
 
 def starts_key(cfg: TrainConfig, grasps: dict[str, dict[str, Any]]) -> str:
     """A short hash of what a run's recorded grasp starts depend on: the recorder's version,
-    the env config (not where its data directory is), the run's seed and streams, the
-    ``grasp_start_*`` settings and each object's grasp (``object_grasps``)."""
-    env = {k: v for k, v in dataclasses.asdict(cfg.env).items() if k != "data_dir"}
+    the env config (not where its data directory is, nor fields at a neutral default), the
+    run's seed and streams, the ``grasp_start_*`` settings and each object's grasp
+    (``object_grasps``)."""
+    env = without_neutral({k: v for k, v in dataclasses.asdict(cfg.env).items()
+                           if k != "data_dir"})
     payload = {
         "format": STARTS_FORMAT, "stride": STRIDE, "env": env, "seed": cfg.run.seed,
         "random_streams": cfg.run.random_streams, "family": cfg.run.grasp_start_family,
