@@ -14,15 +14,17 @@ import pytest
 import torch
 
 import trainer.cli
+import trainer.config
 from geomprep.config import Config
 from tests.tiny_runs import own_data_dir, trainer_main
-from trainer.config import load_env_config
+from trainer.config import NEUTRAL_DEFAULTS, load_env_config, load_train_config
 from trainer.errors import TrainerError
 from trainer.grasps import FAMILIES, TopGrasp, record_grasp, searched
 from trainer.grasps.families import load_searched
 from trainer.grasps.keyframes import DIM, PARAMS, KeyframeGrasp, index, top_grasp_theta
 from trainer.grasps.search import cem
 from trainer.tasks import make_env
+from trainer.training.grasp_starts import starts_key
 
 
 def _env(data: Config, n: int, objects: str = "builtin_cylinder", seed: int = 5):  # noqa: ANN202
@@ -249,10 +251,6 @@ def test_a_field_added_at_its_neutral_default_keeps_the_cached_grasps(
     """A grasp stored before ``physics.table_plane`` existed (its stored hand and physics lack
     the field) is found by today's config at the field's neutral value (False), not by one
     that turns it on; the recorded starts' cache key leaves the field out the same way."""
-    import trainer.config
-    from trainer.config import NEUTRAL_DEFAULTS, load_train_config
-    from trainer.training.grasp_starts import starts_key
-
     assert NEUTRAL_DEFAULTS["env.physics.table_plane"] is False
     cfg = load_env_config(data_dir=tmp_path)
     before = searched.hand_and_physics(cfg)
