@@ -17,7 +17,8 @@ Per object, in one process, one object at a time:
   data directory: about 2-3 minutes of one core) runs the same trials from the same seeded
   initial states, under the same configuration (not the seed file's own);
 - the attributes the reasons are told from: the object's oriented box extents and mass
-  (geomprep's processed file), and of its best grasp(s) the failing trials' outcomes.
+  (geomprep's processed file), and of its best grasp(s) the failing trials' outcomes and the
+  widths the object rested with in its lifted and its failed trials.
 
 Each object's row goes to ``OUT/rows/<object>.json`` (written whole) as soon as it is measured;
 a rerun skips the objects that have a row, so ``--minutes`` chunks (checked between objects: an
@@ -31,8 +32,11 @@ The reason (``reasons``) of an object whose best rate is below ``LIFTS``: every 
 it breaks, in this order: ``beyond span`` (its smallest box extent is wider than the hand opens,
 ``HandLimits.span_m``), ``too heavy`` (its weight exceeds what the servo torque can hold by
 friction, ``HandLimits.holdable_kg``), ``too thin/flat`` (its smallest extent is below
-``THIN_M``); where it breaks none, the dominant outcome of its best grasp's failing trials
-(``no_grip``, ``dropped``, ``pushed``). The box is the whole object's: a thinner part (a handle,
+``THIN_M``), ``rests wide`` (its best grasp failed where the object rested at least
+``REST_WIDE`` of the span wide and lifted it, if at all, where it rested narrower: the medians
+of each trial's narrowest horizontal box width after the first action); where it breaks none,
+the dominant outcome of its best grasp's failing trials (``no_grip``, ``dropped``,
+``pushed``). The box is the whole object's: a thinner part (a handle,
 a wing) that a grasp could close on is not seen, so ``beyond span`` and ``too thin/flat`` speak
 of the object's box, not of its parts.
 """
@@ -70,6 +74,14 @@ THIN_M = 0.0105
 off the table: the finger links' radius (``trainer.robots.sih.FINGER_RADIUS``; the hulls'
 distal links are 20 mm wide, the same within 0.5 mm). A pad resting on the table touches a
 thinner object above the pad's widest point, so the squeeze presses it into the table."""
+REST_WIDTHS = ("rest_width_lifted_mm", "rest_width_failed_mm")
+"""A grasp's median resting width of the target over its lifted and its failed trials
+(``trainer.grasps.outcomes.outcome_rows``: the narrowest horizontal width of its box as it
+rests, what a grasp from above spans)."""
+REST_WIDE = 0.9
+"""A resting width of at least this share of the hand's span is ``rests wide``: the fingers
+then close from nearly their open end (the cracker box lying flat, 169 mm of the 171, was
+lifted by no grasp; on its side, 82 mm, by its grasps: results/graspability-all-2026-11-29/)."""
 SPAN_FINGERS = ("tip_if", "tip_mf", "tip_rf", "tip_lf")
 """The finger pads whose distance to the thumb's pad gives the hand's span."""
 
@@ -149,11 +161,25 @@ def dominant(failures: Mapping[str, int]) -> str:
     return best if failures.get(best, 0) > 0 else ""
 
 
+def rests_wide(rest_mm: Mapping[str, Any], hand: HandLimits) -> bool:
+    """Whether a grasp's failures are its target resting wide: its failed trials rested with a
+    median width of at least ``REST_WIDE`` of the hand's span, and its lifts (if any) narrower
+    (``rest_mm``: the grasp's ``REST_WIDTHS``, mm, empty strings where it has no such trial)."""
+    failed = rest_mm.get("rest_width_failed_mm", "")
+    lifted = rest_mm.get("rest_width_lifted_mm", "")
+    if failed in ("", None):
+        return False
+    wide = REST_WIDE * hand.span_m * 1000
+    return failed >= wide and (lifted in ("", None) or lifted < wide)
+
+
 def reasons(extents_m: Sequence[float], mass_kg: float, hand: HandLimits,
-            failures: Mapping[str, int]) -> str:
+            failures: Mapping[str, int], rest_mm: Mapping[str, Any] | None = None) -> str:
     """Why an object is not lifted: each physical limit it breaks (``beyond span``, ``too
-    heavy``, ``too thin/flat``, comma-separated), else the dominant outcome of the failing
-    trials ``failures`` (outcome -> count)."""
+    heavy``, ``too thin/flat``, ``rests wide``: its best grasp's failures are the resting
+    poses at least ``REST_WIDE`` of the span wide (``rests_wide`` of ``rest_mm``), comma-
+    separated), else the dominant outcome of the failing trials ``failures`` (outcome ->
+    count)."""
     smallest = min(extents_m)
     found = []
     if smallest > hand.span_m:
@@ -162,6 +188,8 @@ def reasons(extents_m: Sequence[float], mass_kg: float, hand: HandLimits,
         found.append("too heavy")
     if smallest < THIN_M:
         found.append("too thin/flat")
+    if "beyond span" not in found and rest_mm is not None and rests_wide(rest_mm, hand):
+        found.append("rests wide")
     return ", ".join(found) or dominant(failures)
 
 
@@ -307,7 +335,8 @@ def measure_object(
     for spec, batch in zip(specs, run_trials(variants, [name], trials, [seed],
                                              config_path=config_path, **env), strict=True):
         (row,) = batch.rows
-        grasps[spec] = {k: row[k] for k in ("trials", "lifted", *FAILURES, "max_rise_cm")}
+        grasps[spec] = {k: row[k]
+                        for k in ("trials", "lifted", *FAILURES, "max_rise_cm", *REST_WIDTHS)}
     record = {"source": source, "search_lifted": entry.get("lifted"),
               "search_trials": entry.get("final_trials")}
     return grasps, record
@@ -332,7 +361,8 @@ def make_row(name: str, grasps: Mapping[str, dict], record: Mapping[str, Any],
         "search_rate": rate[SEARCHED], "best": best[0], "best_rate": best_rate,
         "lifts": best_rate >= LIFTS,
         "failures": failures, "dominant_failure": dominant(failures),
-        "reason": "" if best_rate >= LIFTS else reasons(extents, mass_kg, hand, failures),
+        "reason": "" if best_rate >= LIFTS else reasons(extents, mass_kg, hand, failures,
+                                                        grasps[best[0]]),
         "extents_mm": [round(e * 1000, 1) for e in extents], "mass_kg": round(mass_kg, 4),
         "hand": {"span_mm": round(hand.span_m * 1000, 1), "torque_nm": hand.torque_nm,
                  "thumb_lever_mm": round(hand.thumb_lever_m * 1000, 1),
@@ -380,6 +410,8 @@ def table_rows(rows: Sequence[dict]) -> list[dict]:
             "extent_max_mm": extents[2], "mass_kg": r["mass_kg"],
             **{k: r["hand"][k] for k in ("span_mm", "torque_nm", "holdable_kg")},
         }
+        best = r["grasps"][r["best"]]
+        line.update({f"best_{k}": best.get(k, "") for k in REST_WIDTHS})
         line.update({f"{spec}_lifted": g["lifted"] for spec, g in r["grasps"].items()})
         out.append(line)
     return out
@@ -412,6 +444,10 @@ def write_table(out: Path, rows: Sequence[dict]) -> None:
     ]
     for line, r in zip(lines, sorted(rows, key=lambda r: r["object"]), strict=True):
         fails = ", ".join(f"{o} {n}" for o, n in r["failures"].items() if n)
+        if not r["lifts"] and line["best_rest_width_failed_mm"] != "":
+            lifted = line["best_rest_width_lifted_mm"]
+            fails += (f" (resting {line['best_rest_width_failed_mm']:g} mm wide"
+                      + (f"; its lifts {lifted:g} mm" if lifted != "" else "") + ")")
         md.append(
             f"| {r['object']} | {line['best_family']} ({line['best_family_rate']}) | "
             f"{line['search_rate']} ({r['source']}) | {r['best']} {line['best_rate']} | "

@@ -44,6 +44,20 @@ def test_reasons_follow_the_rules() -> None:
         "dropped"
     assert table.reasons([0.05, 0.06, 0.07], light, HAND, {"pushed": 4}) == "pushed"
     assert table.dominant({"dropped": 0, "no_grip": 0, "pushed": 0}) == ""
+    # Resting wide: the failures rested >= 0.9 of the span (153 mm of 170) and the lifts
+    # narrower, or there were none; not when the lifts rested as wide (the width is not why).
+    box = [0.072, 0.164, 0.214]
+    assert table.reasons(box, light, HAND, fails, {"rest_width_failed_mm": 169.0,
+                                                   "rest_width_lifted_mm": 82.0}) == "rests wide"
+    assert table.reasons(box, light, HAND, fails, {"rest_width_failed_mm": 169.0,
+                                                   "rest_width_lifted_mm": ""}) == "rests wide"
+    assert table.reasons(box, light, HAND, fails, {"rest_width_failed_mm": 165.0,
+                                                   "rest_width_lifted_mm": 163.0}) == "no_grip"
+    assert table.reasons(box, light, HAND, fails, {"rest_width_failed_mm": 150.0,
+                                                   "rest_width_lifted_mm": ""}) == "no_grip"
+    assert table.reasons(box, light, HAND, fails, {}) == "no_grip"  # a row from before widths
+    assert table.reasons([0.18, 0.2, 0.3], light, HAND, fails,
+                         {"rest_width_failed_mm": 200.0}) == "beyond span"
     # The thin threshold is the finger links' radius it says it is.
     assert table.THIN_M == sih.FINGER_RADIUS
 

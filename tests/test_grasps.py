@@ -51,7 +51,8 @@ def synthetic_trajectory() -> tuple[GraspTrajectory, int]:
     distance = torch.full((E, 6), float("nan"))
     distance[0] = torch.tensor([0.03, 0.001, 0.0, 0.05, 0.05, 0.05])  # two pads on it: held
     start_up = torch.tensor([-1.0, 1.0, 1.0, -0.5, 1.0, 1.0])  # 0 and 3 start upside down
-    return GraspTrajectory(pos, pads, success, distance, start_up), pushed_at
+    width = torch.tensor([0.07, 0.16, 0.10, 0.12, 0.14, 0.15])  # m, as each rests
+    return GraspTrajectory(pos, pads, success, distance, start_up, width), pushed_at
 
 
 def test_classify_tells_each_outcome_from_the_trajectory() -> None:
@@ -85,6 +86,9 @@ def test_outcome_rows_count_per_object() -> None:
     assert b["held_lifts"] == 0 and b["nearest_pad_median_cm"] == ""
     assert (a["upside_down"], a["upside_down_lifted"]) == (1, 1)  # trial 0: lifted
     assert (b["upside_down"], b["upside_down_lifted"]) == (1, 0)  # trial 3: pushed
+    # The widths the target rested with: a's lift at 70 mm, its failures at 160 and 150 mm.
+    assert (a["rest_width_lifted_mm"], a["rest_width_failed_mm"]) == (70.0, 150.0)
+    assert (b["rest_width_lifted_mm"], b["rest_width_failed_mm"]) == ("", 120.0)
 
 
 def test_registry_and_its_one_line_errors() -> None:

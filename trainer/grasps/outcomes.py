@@ -76,7 +76,10 @@ def outcome_rows(
     the lowest thumb and index pad (cm) during ``close_window`` [start, end) (steps), and of
     the lifts, how many were held by two pads within 2 cm (``held_lifts``) and the nearest pad's
     median distance at success (cm, empty without lifts); how many trials started with the
-    target upside down (``GraspTrajectory.start_up``) and how many of those were lifted."""
+    target upside down (``GraspTrajectory.start_up``) and how many of those were lifted; the
+    median width (mm) the target rested with (``GraspTrajectory.start_width``) over the lifted
+    trials and over the others (empty where there are none): a grasp that lifts the target
+    only where it rests narrow names its resting pose as the failure's cause."""
     ids = ids.cpu()
     code = classify(trajectory, pushed_at)
     up = rise(trajectory)
@@ -86,6 +89,13 @@ def outcome_rows(
     nearest = trajectory.success_distance[:, 1:].amin(-1)
     upside_down = (trajectory.start_up < 0 if trajectory.start_up is not None
                    else torch.zeros_like(trajectory.lifted))
+    width = trajectory.start_width
+
+    def median_mm(select: torch.Tensor) -> float | str:
+        if width is None or not bool(select.any()):
+            return ""
+        return round(float(width[select].median()) * 1000, 1)
+
     rows = []
     for k, name in enumerate(names):
         m = ids == k
@@ -103,6 +113,8 @@ def outcome_rows(
             "upside_down": int(upside_down[m].sum()),
             "upside_down_lifted": int((upside_down & trajectory.lifted)[m].sum()),
             "nearest_pad_median_cm": _cm(nearest[lifts].median()) if bool(lifts.any()) else "",
+            "rest_width_lifted_mm": median_mm(lifts),
+            "rest_width_failed_mm": median_mm(m & ~trajectory.lifted),
         })
         rows.append(row)
     return rows

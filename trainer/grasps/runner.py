@@ -12,12 +12,16 @@ from tensordict import TensorDict
 
 from geomgrasp.rotations import quat_to_matrix
 from trainer.errors import TrainerError
+from trainer.grasps.geometry import narrowest_horizontal, target_box
 from trainer.grasps.top import TopGrasp
 from trainer.tasks import GraspTask
 
 if TYPE_CHECKING:
     from trainer.config import EnvConfig
 
+WIDTH_DIRECTIONS = 36
+"""Horizontal directions (every 5 degrees) over which ``GraspTrajectory.start_width`` takes the
+target's narrowest width."""
 
 class GraspScript(Protocol):
     """A grasp family's script: open-loop actions per step, planned at step 0 from the state
@@ -68,6 +72,9 @@ class GraspTrajectory:
     start_up: torch.Tensor | None = None
     """(E,) the world z component of the target's own z axis (its mesh's up) after the first
     action: negative for a target that starts upside down (a plate on its face)."""
+    start_width: torch.Tensor | None = None
+    """(E,) m: the narrowest horizontal width of the target's bounding box as it rests, after
+    the first action (``geometry.narrowest_horizontal``): what a grasp from above must span."""
 
     @property
     def lifted(self) -> torch.Tensor:
@@ -86,6 +93,7 @@ class TrajectoryRecorder:
         self.success_distance = torch.full((env.num_envs, 6), float("nan"), device=env.device)
         self.succeeded = torch.zeros(env.num_envs, dtype=torch.bool, device=env.device)
         self.start_up: torch.Tensor | None = None
+        self.start_width: torch.Tensor | None = None
 
     def capture(self, success: torch.Tensor) -> None:
         """Record the env's state after an action; ``success`` (E,) bool is that step's flag."""
@@ -96,6 +104,8 @@ class TrajectoryRecorder:
         self.success.append(success.clone())
         if self.start_up is None:
             self.start_up = quat_to_matrix(quat)[:, 2, 2]
+            _, axes, half = target_box(env)
+            self.start_width = 2 * narrowest_horizontal(axes, half, WIDTH_DIRECTIONS)[0]
         new = success & ~self.succeeded
         if bool(new.any()):  # the SDF query only at the steps where some env first succeeds
             self.success_distance[new] = keypoint_distances(env)[new]
@@ -106,6 +116,7 @@ class TrajectoryRecorder:
             torch.stack(self.target_pos).cpu(), torch.stack(self.pad_height).cpu(),
             torch.stack(self.success).cpu(), self.success_distance.cpu(),
             None if self.start_up is None else self.start_up.cpu(),
+            None if self.start_width is None else self.start_width.cpu(),
         )
 
 
