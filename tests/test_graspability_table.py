@@ -156,6 +156,22 @@ def test_rows_and_table_are_written_and_a_rerun_measures_only_new_objects(
     assert "stopped after 1e-09 minutes: 1 objects left" in capsys.readouterr().out
     assert len(searched) == 3 and not (out / "rows" / "builtin_dice.json").exists()
 
+    # --remake measures nothing and makes each row's best and reason again from its counts:
+    # the box's grasps made to fail where it rested 169 mm wide become "rests wide".
+    row = json.loads((out / "rows" / "builtin_box.json").read_text())
+    for counts in row["grasps"].values():
+        counts.update(lifted=0, no_grip=2, dropped=0, pushed=0, rest_width_lifted_mm="",
+                      rest_width_failed_mm=169.0)
+    row["reason"] = "stale"
+    (out / "rows" / "builtin_box.json").write_text(json.dumps(row))
+    table.main([*argv, "--remake"])
+    assert "3 rows made again by today's rules" in capsys.readouterr().out
+    assert len(searched) == 3 and len(measured) == 6
+    box = json.loads((out / "rows" / "builtin_box.json").read_text())
+    assert (box["lifts"], box["best_rate"], box["reason"]) == (False, 0.0, "rests wide")
+    assert "| builtin_box |" in (out / "table.md").read_text()
+    assert "resting 169 mm wide" in (out / "table.md").read_text()
+
 
 @pytest.mark.parametrize(("extra", "message"), [
     (["--objects", "no_such_thing"], "unknown object 'no_such_thing'"),
