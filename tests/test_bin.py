@@ -201,3 +201,33 @@ def test_bank_is_cached_and_rebuilt_when_damaged(builtin_data: Config) -> None:
     second.close()
     rebuilt = [p for p in files if p.read_bytes() != b"garbage"]
     assert [np.load(p).shape for p in rebuilt] == [(6, 5, 7)]
+
+
+def test_fixed_drops_keep_each_envs_settled_state(env: GraspTask) -> None:
+    """``[run] fixed_drops`` (``use_fixed_drops``): every reset puts each env's clutter back
+    exactly as its first one did, unturned, the envs of a layout on different states of its
+    bank, while the target is still drawn per episode; the default draws a new state."""
+    from trainer.tasks.starts import FixedDrop, SettledStart
+
+    env.use_fixed_drops()
+    try:
+        assert isinstance(env.starts[0], FixedDrop)
+        env.reset()
+        first = env.slot_poses(env.backend.qpos).clone()
+        targets = [env.state["target_slot"].clone()]
+        for _ in range(3):
+            env.reset()
+            torch.testing.assert_close(env.slot_poses(env.backend.qpos), first)
+            targets.append(env.state["target_slot"].clone())
+        assert any(not torch.equal(t, targets[0]) for t in targets[1:])
+        layout = env.env_layout.tolist()
+        for a in range(E):
+            for b in range(a + 1, E):
+                if layout[a] == layout[b]:  # (3 layouts of <= 3 envs, banks of 6 states)
+                    assert not torch.allclose(first[a], first[b]), (a, b)
+    finally:
+        env.starts = [SettledStart() if isinstance(s, FixedDrop) else s for s in env.starts]
+    env.reset()
+    drawn = env.slot_poses(env.backend.qpos).clone()
+    env.reset()
+    assert not torch.allclose(env.slot_poses(env.backend.qpos), drawn)

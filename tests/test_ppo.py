@@ -350,17 +350,22 @@ def test_object_success_rate_weighs_objects_equally() -> None:
     assert math.isnan(ObjectOutcomes(window=4).rate())
 
 
-def test_bin_run_with_context_resumes_bit_for_bit(builtin_data: Config, tmp_path: Path) -> None:
+@pytest.mark.parametrize("fixed_drops", [False, True])
+def test_bin_run_with_context_resumes_bit_for_bit(
+    builtin_data: Config, tmp_path: Path, fixed_drops: bool
+) -> None:
     """The bin task (5 of the built-in objects, the target's box, the other objects' boxes as
     context): a killed and resumed run ends exactly where an uninterrupted one does, targets,
-    clutter and context encoder included."""
+    clutter and context encoder included; with ``[run] fixed_drops`` as well (the envs then
+    keep their settled states: the resumed run's must be the same)."""
     cfg = load_train_config(
         env={"num_envs": 4, "task": "bin", "objects": "builtin", "context": "bbox",
              "data_dir": builtin_data.data_dir, "max_steps": 10,
              "bin": {"num_objects": 5, "layouts": 2, "bank_size": 4}},
         ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 2,
              "hidden": (32, 32, 32), "context_hidden": (16, 16)},
-        run={"total_steps": 4 * 8 * 4, "checkpoint_every": 2, "seed": 3},
+        run={"total_steps": 4 * 8 * 4, "checkpoint_every": 2, "seed": 3,
+             "fixed_drops": fixed_drops},
     )
     assert cfg.env.representation == "bbox"  # the bin task's default
     straight = train(cfg, tmp_path / "straight", progress=False)

@@ -529,6 +529,11 @@ class RunConfig(_Checked):
     """The fraction of training episodes that start from a state along a scripted grasp that
     lifted the env's object (recorded when the run starts; counted in no success rate or
     curriculum); 0: all start home (results/cpu-together-starts50-2026-11-27/)."""
+    fixed_drops: bool = False
+    """Ours (the authors' public bin task; not the paper's): each training env keeps one
+    settled state of its layout for good (``trainer.tasks.starts.FixedDrop``) instead of drawing
+    one per reset; the target is still drawn per episode, and ``trainer eval`` draws its
+    states."""
     grasp_start_family: str = "best"
     """The scripted grasp those starts come from: ``best`` (each object's family in
     ``trainer.grasps.families.BEST``, Table I objects only) or one ``FAMILY[:VARIANT]``."""

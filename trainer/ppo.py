@@ -347,6 +347,8 @@ def build_parts(
         first = world.rank * env.num_envs  # (this process's rows: its envs)
         env.set_grasp_starts(starts.rows(first, first + env.num_envs), cfg.run.grasp_starts,
                              streams.torch("grasp_choice"))
+    if cfg.run.fixed_drops:
+        env.use_fixed_drops()
     if world.is_main:
         run.write_config(cfg)
     agent = make_agent(env, cfg.ppo)

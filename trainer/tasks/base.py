@@ -51,6 +51,7 @@ from trainer.sim import make_backend
 from trainer.tasks.outputs import StepOutputs, compiled_or_eager, lowest_point, thrown
 from trainer.tasks.spec import observation_spec
 from trainer.tasks.starts import (
+    FixedDrop,
     GraspStart,
     GraspStarts,
     SettledStart,
@@ -279,6 +280,11 @@ class GraspTask(EnvBase):
     def _use_start(self, strategy: StartStrategy) -> None:
         """Apply ``strategy`` after the others from now on, in place of one of its kind."""
         self.starts = [s for s in self.starts if type(s) is not type(strategy)] + [strategy]
+
+    def use_fixed_drops(self) -> None:
+        """Training only: each env keeps one settled state for good (``FixedDrop`` in place of
+        ``SettledStart``, ``[run] fixed_drops``)."""
+        self.starts = [FixedDrop() if type(s) is SettledStart else s for s in self.starts]
 
     def use_reset_generator(self, generator: torch.Generator) -> None:
         """Draw the episodes' initial states from ``generator`` instead of the ``resets``

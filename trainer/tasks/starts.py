@@ -6,6 +6,9 @@ envs, every one behind the same interface (``StartStrategy.apply``):
 - ``SettledStart`` (always, first; the paper's): a settled state of the env's layout from the
   bank (``trainer.init_states``), turned about the vertical axis, the robot at the home that
   state starts from, and a new target.
+- ``FixedDrop`` (training only, ``[run] fixed_drops``; the authors' public bin task, not the
+  paper's): in place of ``SettledStart``, each env keeps one settled state of its layout for
+  good, unturned.
 - ``GraspStart`` (training only, ``[run] grasp_starts``; not the paper's): a fraction of the
   envs instead starts from a recorded state along a scripted grasp of its object
   (``GraspStarts``, recorded by ``trainer.training.grasp_starts``). Evidence:
@@ -120,13 +123,19 @@ class SettledStart(StartStrategy):
     task's reset generator), turned about the vertical axis; the episode's target chosen by
     the task."""
 
+    def states(self, task: ResettingTask, ids: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(n,) the bank index of each env's settled state and (n,) its turn (rad): drawn."""
+        n = len(ids)
+        pick = torch.randint(task.banks.shape[1], (n,), generator=task._rng, device=task.device)
+        return pick, task._reset_yaw(n)
+
     def apply(self, task: ResettingTask, ids: torch.Tensor, full: bool) -> None:
         n = len(ids)
         if n == 0:
             return
-        pick = torch.randint(task.banks.shape[1], (n,), generator=task._rng, device=task.device)
+        pick, yaw = self.states(task, ids)
         pose = task.banks[task.env_layout[ids], pick]  # (n, K, 7)
-        pose = turned(pose, task._reset_yaw(n))
+        pose = turned(pose, yaw)
         home = task.home_index[task.env_layout[ids], pick]
         qpos = task.home_qpos[home]
         qpos[:, task.slot_qpos] = pose
@@ -152,6 +161,21 @@ class SettledStart(StartStrategy):
         task.backend.set_state(
             ids, qpos, torch.zeros(n, task.backend.nv, device=task.device), fresh["ctrl"], *mocap
         )
+
+
+class FixedDrop(SettledStart):
+    """``SettledStart`` with each env's own settled state for good, as it settled (no turn):
+    the authors' public bin task keeps each env's first drop. The envs of a layout take its
+    bank's states in turn (env j of the layout: state j mod the bank's size), so the envs
+    cover the bank before any state repeats. The target is still drawn per episode. Training
+    only (``[run] fixed_drops``): ``trainer eval`` draws its states."""
+
+    def states(self, task: ResettingTask, ids: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        layout = torch.as_tensor(task.env_layout, device=task.device)
+        first = torch.searchsorted(layout, layout)  # each env's layout's first env
+        within = torch.arange(len(layout), device=task.device) - first
+        pick = within[ids] % task.banks.shape[1]
+        return pick, torch.zeros(len(ids), device=task.device)
 
 
 class DamagedStarts(TrainerError):
