@@ -4,7 +4,7 @@ that no grasp lifts in ``LIFTS`` of its trials, why, from measured attributes.
 
     python scripts/graspability_table.py --out results/graspability-all-DATE --data-dir data \\
         [--objects ycb|NAMES] [--trials 20] [--families top,pinch:press6+noslip,pinch:rim] \\
-        [--seed 0] [--minutes 100] [--config FILE] [--set KEY=VALUE ...]
+        [--seed 0] [--minutes 100] [--config FILE] [--set KEY=VALUE ...] [--remake]
 
 Per object, in one process, one object at a time:
 
@@ -27,6 +27,9 @@ one folder must share their settings (trials, seed, families, configuration): an
 is refused in one line. After each object the table is made again from every row of
 ``OUT/rows``: ``OUT/graspability.csv`` and ``OUT/table.md`` (with its summary line: how many
 objects the search, and any grasp, lifts in >= ``LIFTS`` of its trials).
+
+``--remake`` measures nothing: it makes every row of ``OUT/rows`` again from its measured
+counts by today's rules (``make_row``: the best, the reason), then the table.
 
 The reason (``reasons``) of an object whose best rate is below ``LIFTS``: every physical limit
 it breaks, in this order: ``beyond span`` (its smallest box extent is wider than the hand opens,
