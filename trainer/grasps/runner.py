@@ -23,6 +23,7 @@ WIDTH_DIRECTIONS = 36
 """Horizontal directions (every 5 degrees) over which ``GraspTrajectory.start_width`` takes the
 target's narrowest width."""
 
+
 class GraspScript(Protocol):
     """A grasp family's script: open-loop actions per step, planned at step 0 from the state
     after the reset (``plan`` starts empty for it to fill)."""
