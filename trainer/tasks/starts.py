@@ -171,9 +171,9 @@ class FixedDrop(SettledStart):
     only (``[run] fixed_drops``): ``trainer eval`` draws its states."""
 
     def states(self, task: ResettingTask, ids: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        layout = torch.as_tensor(task.env_layout, device=task.device)
+        layout = task.env_layout  # (E,) non-decreasing: a layout's envs are contiguous
         first = torch.searchsorted(layout, layout)  # each env's layout's first env
-        within = torch.arange(len(layout), device=task.device) - first
+        within = torch.arange(len(layout), device=layout.device) - first
         pick = within[ids] % task.banks.shape[1]
         return pick, torch.zeros(len(ids), device=task.device)
 
