@@ -22,9 +22,10 @@ from trainer.training.outcomes import EpisodeStats
 
 
 def _cfg(builtin_data: Config, robot: dict | None = None, **overrides: object):  # noqa: ANN202
-    return load_env_config(num_envs=4, objects="builtin_cylinder,builtin_box",
-                           representation="bbox", data_dir=builtin_data.data_dir,
-                           robot={"home_above_objects": True, **(robot or {})}, **overrides)
+    return load_env_config(**{"num_envs": 4, "objects": "builtin_cylinder,builtin_box",
+                              "representation": "bbox", "data_dir": builtin_data.data_dir,
+                              "robot": {"home_above_objects": True, **(robot or {})},
+                              **overrides})
 
 
 @pytest.fixture(scope="module")
@@ -168,6 +169,35 @@ def test_relative_hand_actions_record_the_same_starts(
                                    RandomStreams(0), "top", rounds=1)
     assert torch.equal(relative.valid, absolute.valid)
     torch.testing.assert_close(relative.qpos, absolute.qpos)
+
+
+def test_what_the_policy_observes_and_the_shaping_term_share_one_recording(
+    builtin_data: Config, top_starts: GraspStarts
+) -> None:
+    """Runs that differ only in ``UNRECORDED_FIELDS`` (representation, context, observed extras,
+    the reward's shaping term) record the same states, so their starts share one key; a field
+    the physics reads (the solver's iterations) is another key."""
+    from trainer.config import load_train_config
+    from trainer.training.grasp_starts import starts_key
+
+    other = record_grasp_starts(
+        _cfg(builtin_data, representation="sdf", observe_fingertips=True,
+             reward={"kind": "com", "contact_shaping": "difference"}),
+        RandomStreams(0), "top", rounds=1)
+    assert torch.equal(other.valid, top_starts.valid) and torch.equal(other.qpos, top_starts.qpos)
+    keys = top_starts.task.keys()  # (a TensorDict iterates over its rows)
+    assert all(torch.equal(other.task[k], top_starts.task[k]) for k in keys)
+
+    def key(**env: object) -> str:
+        cfg = load_train_config(env={"objects": "builtin_cylinder", **env})
+        return starts_key(cfg, {"builtin_cylinder": {"family": "top"}})
+
+    base = key()
+    assert key(task="bin", context="bbox") == key(task="bin")
+    assert key(representation="pc128", observe_hand_targets=True,
+               reward={"kind": "none", "contact_shaping": "difference"}) == base
+    assert key(physics={"iterations": 7}) != base
+    assert key(reward={"h_bar_start": 0.05}) != base  # the success test's curriculum counts
 
 
 def test_closing_phase_keeps_the_states_of_the_closing_only(

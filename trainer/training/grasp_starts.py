@@ -54,6 +54,13 @@ STARTS_STORE = Path("grasps") / "starts"
 """The folder of the cached recordings in a data directory (one ``<key>.pt`` per key)."""
 STRIDE = 10
 """Actions between two kept states of a scripted grasp."""
+UNRECORDED_FIELDS = ("representation", "context", "observe_fingertips", "observe_hand_targets",
+                     "reward.kind", "reward.contact_shaping")
+"""Env fields (dotted below ``env``) a recording does not depend on, left out of its key: what
+the policy observes and which shaping term the reward sums. The script's actions, the physics,
+the resets and the success test (its lift curriculum, hold test and clearance) read none of
+them, so runs of one seed that differ only there share one recording (the comparison's seven
+arms of seed 0 had recorded seven identical files, results/cpu-comparison-2026-11-29/)."""
 
 
 def object_grasps(
@@ -76,11 +83,14 @@ def object_grasps(
 
 def starts_key(cfg: TrainConfig, grasps: dict[str, dict[str, Any]]) -> str:
     """A short hash of what a run's recorded grasp starts depend on: the recorder's version,
-    the env config (not where its data directory is, nor fields at a neutral default), the
-    run's seed and streams, the ``grasp_start_*`` settings and each object's grasp
-    (``object_grasps``)."""
+    the env config (not where its data directory is, nor fields at a neutral default, nor the
+    ``UNRECORDED_FIELDS``), the run's seed and streams, the ``grasp_start_*`` settings and each
+    object's grasp (``object_grasps``)."""
     env = without_neutral({k: v for k, v in dataclasses.asdict(cfg.env).items()
                            if k != "data_dir"})
+    for dotted in UNRECORDED_FIELDS:
+        section, _, name = dotted.rpartition(".")
+        (env[section] if section else env).pop(name, None)
     payload = {
         "format": STARTS_FORMAT, "stride": STRIDE, "env": env, "seed": cfg.run.seed,
         "random_streams": cfg.run.random_streams, "family": cfg.run.grasp_start_family,
