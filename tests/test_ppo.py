@@ -550,6 +550,36 @@ def test_init_agent_starts_from_another_runs_networks_and_normalizers(
     assert code == 1 and "no such checkpoint file or run directory" in err
 
 
+def test_iteration_0_is_the_agent_a_run_started_from(
+    killed_run: Path, builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys,  # noqa: ANN001
+) -> None:
+    """``--iteration 0`` evaluates the agent a run started from (its init_agent, before any
+    update), into eval-start/; a run that started fresh has none: one line."""
+    from trainer.training.checkpoint import load_agent
+
+    source = killed_run / "checkpoints" / "iter_000002.pt"
+    cfg = tiny_config(builtin_data.data_dir, iterations=1)
+    started = train(
+        dataclasses.replace(cfg, run=dataclasses.replace(cfg.run, init_agent=str(source))),
+        tmp_path / "started", progress=False,
+    )
+    _, agent = load_agent(started.path, "cpu", iteration=0)
+    before = torch.load(source, weights_only=False)["agent"]
+    assert all(torch.equal(v, before[k]) for k, v in agent.state_dict().items())
+    _, trained = load_agent(started.path, "cpu")
+    assert not all(torch.equal(v, before[k]) for k, v in trained.state_dict().items())
+    code, out, _ = main(["eval", str(started.path), "--iteration", "0",
+                         "--episodes-per-object", "1"], monkeypatch, capsys)
+    assert code == 0 and "overall" in out
+    table = (started.path / "eval-start" / "table.md").read_text()
+    assert "the agent the run started from" in table
+    assert not (started.path / "eval").exists()
+    fresh = train(cfg, tmp_path / "fresh", progress=False)
+    code, _, err = main(["eval", str(fresh.path), "--iteration", "0"], monkeypatch, capsys)
+    assert code == 1 and "started from a fresh agent" in err and len(err.strip().splitlines()) == 1
+
+
 def test_copy_agent_parts_takes_only_the_named_parts(builtin_data: Config) -> None:
     cfg = tiny_config(builtin_data.data_dir)
     spec = observation_spec(cfg.env, 1)["observation"]

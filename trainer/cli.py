@@ -595,7 +595,8 @@ def _resume(run_dir: Path, steps: int | None, minutes: float | None) -> None:
               help="Success: the target's lowest surface point risen this many metres too (a "
               "tip is not a lift) [the run's reward.lift_clearance, 0].")
 @click.option("--iteration", type=int, default=None,
-              help="Evaluate the checkpoint of this training iteration [the last].")
+              help="Evaluate the checkpoint of this training iteration; 0: the agent the run "
+              "started from (its init_agent), before any training [the last].")
 @click.option("--sample", is_flag=True,
               help="Sample the actions from the policy's Gaussian, as in training, instead of "
               "taking its mean (seeded: repeatable).")
@@ -604,7 +605,7 @@ def _resume(run_dir: Path, steps: int | None, minutes: float | None) -> None:
               "the target at the success step (with --hold-tips 0: which lifts were tosses).")
 @click.option("--out", default=None,
               help="Folder in the run directory for the results (trainer report reads eval) "
-              "[eval; with --sample: eval-sampled].")
+              "[eval; with --sample: eval-sampled; with --iteration 0: eval-start].")
 @click.option("--device", default=None, help="Torch device [the run's].")
 def eval_cmd(
     run_dir: Path, episodes_per_object: int, objects: str | None, held_out: bool,
@@ -628,7 +629,7 @@ def eval_cmd(
     from trainer.evaluation import ENDINGS, evaluate
 
     if iteration is not None:
-        _at_least("--iteration", iteration, 1)
+        _at_least("--iteration", iteration, 0)
     if held_out:
         from trainer.training.run_dir import RunDir
 

@@ -56,7 +56,8 @@ class EvalResult:
     success_text: str = ""
     """What counted as a success (``RewardConfig.success_text``)."""
     iteration: int | None = None
-    """The checkpoint evaluated: that of this training iteration (None: the run's last)."""
+    """The checkpoint evaluated: that of this training iteration (None: the run's last; 0: the
+    agent the run started from)."""
     sampled: bool = False
     """Actions sampled from the policy's Gaussian (as in training) instead of its mean."""
     held: list[int] | None = None
@@ -121,10 +122,11 @@ def evaluate(
     lift_clearance: float | None = None,
     bin_objects: int | None = None,
 ) -> EvalResult:
-    """Evaluate the run's last checkpoint (or that of ``iteration``) on its object set (or
-    ``objects``), on ``device`` (default: the run's), for the run's task; writes
-    ``per_object.csv`` and ``table.md`` in the run directory's folder ``out`` (default
-    ``eval``; ``eval-sampled`` with ``sample``).
+    """Evaluate the run's last checkpoint (or that of ``iteration``; 0: the agent the run
+    started from, its ``init_agent``, before any training) on its object set (or ``objects``),
+    on ``device`` (default: the run's), for the run's task; writes ``per_object.csv`` and
+    ``table.md`` in the run directory's folder ``out`` (default ``eval``; ``eval-sampled``
+    with ``sample``; ``eval-start`` for iteration 0).
 
     ``sample``: actions sampled from the policy's Gaussian, as in training (the global torch
     generator seeded with ``seed`` for the evaluation, then restored), instead of its mean.
@@ -149,7 +151,7 @@ def evaluate(
     if bin_objects is not None and bin_objects < 1:
         raise TrainerError(f"bin_objects must be >= 1, got {bin_objects}")
     if out is None:
-        out = "eval-sampled" if sample else "eval"
+        out = "eval-sampled" if sample else "eval-start" if iteration == 0 else "eval"
         if bin_objects is not None:
             out = f"{out}-bin{bin_objects}"
     if not out or Path(out).name != out or out in (".", ".."):
@@ -444,6 +446,8 @@ def write_eval(run: RunDir, result: EvalResult, folder: str = "eval") -> None:
             extra = [] if not pads else [result.held[k], _metres(result.nearest_pad[k])]
             writer.writerow([name, result.episodes[k], result.successes[k], rate, *task, *extra])
     checkpoint = ("the last checkpoint" if result.iteration is None
+                  else "the agent the run started from (iteration 0: before its training)"
+                  if result.iteration == 0
                   else f"the checkpoint of iteration {result.iteration}")
     actions = "; actions sampled from the policy (as in training)" if result.sampled else ""
     lines = [

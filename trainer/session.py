@@ -180,8 +180,9 @@ class EvalSession:
         lift_clearance: float | None = None, policy: bool = True,
     ) -> EvalSession:
         """The run in ``run_dir``: its config and the agent of its last checkpoint (or that of
-        ``iteration``), on ``device`` (default: the run's). ``h_bar``, ``hold_tips``,
-        ``lift_clearance``: the success to count instead of the run's (``success_reward``).
+        ``iteration``; 0: the agent it started from), on ``device`` (default: the run's).
+        ``h_bar``, ``hold_tips``, ``lift_clearance``: the success to count instead of the
+        run's (``success_reward``).
         ``policy=False``: the config only (no checkpoint is read)."""
         if policy:
             cfg, agent = load_agent(Path(run_dir), device, iteration)

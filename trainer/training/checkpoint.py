@@ -216,8 +216,8 @@ def load_agent(
     run_dir: Path, device: str | None = None, iteration: int | None = None
 ) -> tuple[TrainConfig, Agent]:
     """A trained run's config and agent (networks + normalizers, in eval mode) from its last
-    readable checkpoint (or that of ``iteration``), on ``device`` (default: the run's), which
-    the returned config names."""
+    readable checkpoint (or that of ``iteration``; 0: the agent the run started from,
+    ``start_agent``), on ``device`` (default: the run's), which the returned config names."""
     run = RunDir(Path(run_dir))
     cfg = run.load_config()
     if device is not None:
@@ -225,11 +225,33 @@ def load_agent(
     check_device(
         cfg.env.device, f"device {cfg.env.device!r} of {run.path}", "pass --device cpu"
     )
-    if iteration is None:
-        state = load_last_checkpoint(run, map_location="cpu")  # whatever device it trained on
-    else:
-        state = load_checkpoint_of(run, iteration)
     agent = Agent(observation_spec(cfg.env, 1)["observation"], cfg.ppo)
-    agent.load_state_dict(state["agent"])
+    if iteration == 0:
+        start_agent(agent, run, cfg)
+    else:
+        if iteration is None:
+            state = load_last_checkpoint(run, map_location="cpu")  # whatever device it trained on
+        else:
+            state = load_checkpoint_of(run, iteration)
+        agent.load_state_dict(state["agent"])
     agent.eval()
     return cfg, agent.to(cfg.env.device)
+
+
+def start_agent(agent: Agent, run: RunDir, cfg: TrainConfig) -> None:
+    """Load into ``agent`` the agent the run ``run`` (of config ``cfg``) started training from:
+    its warmup's or its ``init_agent``'s, as ``trainer.ppo.build_parts`` loaded it (unseen
+    features silenced where the run did). What a run's training added is measured against it
+    (e.g. a bin run from a lift policy). A run that started from a fresh agent, or from only
+    some parts of another, has no such agent to load: a one-line error."""
+    source = run.warmup if cfg.run.warmup_steps else cfg.run.init_agent
+    if not source:
+        raise TrainerError(f"{run.path} started from a fresh agent (no init_agent or warmup): "
+                           "iteration 0 has no agent to load; pass --iteration 1 or later")
+    if set(cfg.run.init_agent_parts) != set(AGENT_PARTS):
+        raise TrainerError(f"{run.path} took only the {' and '.join(cfg.run.init_agent_parts)} "
+                           f"of {source}; the rest started fresh: iteration 0 has no agent to "
+                           "load; pass --iteration 1 or later")
+    init_agent_from(agent, Path(source))
+    if cfg.run.init_agent_unseen == "silence":
+        agent.silence_unseen_features()
