@@ -12,7 +12,7 @@
 # CHUNK_EPISODES (20; 0: none) episodes per object into eval-<env steps>M/. Once the run has
 # trained BUDGET_MINUTES (or reached its total_steps) it is evaluated, once, with FINAL_EPISODES (50) per
 # object into eval/ (what `trainer report` reads), and a bin run also on bins of BIN_EVAL (10)
-# objects into eval-bin10/. With VIDEO_OBJECT set, each chunk also films the policy's picks of
+# objects into eval-bin10/ and on bins of its own size it never trained on into eval-new/. With VIDEO_OBJECT set, each chunk also films the policy's picks of
 # that object (the successes first) into RESULTS_DIR/media/NAME-<env steps>M.mp4. Stop a chunk
 # early with SIGTERM to its `trainer run` (it checkpoints); rerun to copy back and continue.
 # Environment: DATA_DIR (data), RUNS_DIR (runs).
@@ -68,6 +68,8 @@ elif [ "$DONE" = 1 ]; then
   if [ "$TASK" = bin ]; then
     trainer eval "$RUN" --episodes-per-object "${FINAL_EPISODES:-50}" --bin-objects "${BIN_EVAL:-10}" \
       && cp -r "$RUN/eval-bin${BIN_EVAL:-10}" "$SAVED/"
+    trainer eval "$RUN" --episodes-per-object "${FINAL_EPISODES:-50}" --new-bins \
+      && cp -r "$RUN/eval-new" "$SAVED/"
   fi
 elif [ "${CHUNK_EPISODES:-20}" -gt 0 ]; then
   trainer eval "$RUN" --episodes-per-object "${CHUNK_EPISODES:-20}" --out "eval-${STEPS}M" \

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 
 import trainer.cli
 import trainer.ppo
@@ -458,6 +459,29 @@ def test_held_out_objects_are_never_trained_on_and_evaluated_apart(
                                      "--run-dir", str(tmp_path / f"bad-{held}")],
                                     monkeypatch, capsys)
         assert code != 0 and message in err and len(err.strip().splitlines()) == 1
+
+
+def test_bin_eval_on_new_bins(
+    bin_run: Path, lift_run: Path, monkeypatch: pytest.MonkeyPatch, capsys  # noqa: ANN001
+) -> None:
+    """--new-bins: the run's policy in bins it never trained on (another seed's layouts), in
+    eval-new; the run's own bins are kept as they were; a lift run has none to draw."""
+    from trainer.session import EvalSession
+
+    session = EvalSession(RunDir(bin_run).load_config())
+    own, new = session.bin_env(4), session.bin_env(4, new_bins=True)
+    assert not torch.equal(own.layouts, new.layouts)
+    assert torch.equal(own.layouts, session.bin_env(4).layouts)
+    for env in (own, new):
+        env.close()
+    code, out, err = invoke_all(["eval", str(bin_run), "--episodes-per-object", "1",
+                                 "--new-bins", "--max-rounds", "1"], monkeypatch, capsys)
+    assert code == 0, err
+    assert "in new bins (never trained on)" in out.splitlines()[0]
+    assert (bin_run / "eval-new" / "per_object.csv").is_file()
+    code, _, err = invoke_all(["eval", str(lift_run), "--new-bins"], monkeypatch, capsys)
+    assert code != 0 and "only a bin run has bins to draw anew" in err
+    assert len(err.strip().splitlines()) == 1
 
 
 def test_bin_eval_on_bins_of_another_size(

@@ -586,6 +586,9 @@ def _resume(run_dir: Path, steps: int | None, minutes: float | None) -> None:
 @click.option("--bin-objects", type=int, default=None,
               help="Bin task: new bins of this many objects, drawn by the run's seed (the paper "
               "evaluates its 5-object policy on 10) [the run's bins; out: eval-binN].")
+@click.option("--new-bins", is_flag=True,
+              help="Bin task: bins the run never trained on (its bins are its seed's [bin] "
+              "layouts; these, another seed's) [out: eval-new, eval-binN-new].")
 @click.option("--hold-tips", type=int, default=None,
               help="Success: lifted by h_bar with this many fingertip pads on the target (0: "
               "any rise) [the run's reward.hold_tips].")
@@ -611,7 +614,7 @@ def eval_cmd(
     run_dir: Path, episodes_per_object: int, objects: str | None, held_out: bool,
     max_rounds: int, hold_tips: int | None, h_bar: float | None, lift_clearance: float | None,
     iteration: int | None, sample: bool, pads: bool, out: str | None, device: str | None,
-    bin_objects: int | None,
+    bin_objects: int | None, new_bins: bool,
 ) -> None:
     """Success per target object of the deterministic policy (eval/per_object.csv,
     eval/table.md), or with --sample of the policy as it acts in training.
@@ -619,7 +622,7 @@ def eval_cmd(
     Lift: EPISODES_PER_OBJECT episodes of each object. Bin: the bins the run trained on, rounds
     of new episodes with the targets balanced over the objects, until each object in the bins
     has been the target at least EPISODES_PER_OBJECT times (or MAX_ROUNDS rounds ran); with
-    --bin-objects, new bins of that many objects.
+    --bin-objects, new bins of that many objects; with --new-bins, bins it never trained on.
     """
     _at_least("--episodes-per-object", episodes_per_object, 1)
     _at_least("--max-rounds", max_rounds, 1)
@@ -644,7 +647,7 @@ def eval_cmd(
     result = evaluate(
         _run_dir(run_dir), episodes_per_object, objects, device=device, max_rounds=max_rounds,
         hold_tips=hold_tips, h_bar=h_bar, iteration=iteration, out=out, sample=sample,
-        pads=pads, lift_clearance=lift_clearance, bin_objects=bin_objects,
+        pads=pads, lift_clearance=lift_clearance, bin_objects=bin_objects, new_bins=new_bins,
     )
     sampled = " (actions sampled)" if sample else ""
     click.echo(f"{result.describe()}: success per target object{sampled}")

@@ -53,6 +53,8 @@ class EvalResult:
     rounds: int = 1
     short: list[str] = dataclasses.field(default_factory=list)
     absent: list[str] = dataclasses.field(default_factory=list)
+    new_bins: bool = False
+    """Bin: the episodes ran in bins the run never trained on (``--new-bins``)."""
     success_text: str = ""
     """What counted as a success (``RewardConfig.success_text``)."""
     iteration: int | None = None
@@ -101,6 +103,7 @@ class EvalResult:
             f"task bin ({self.bin_objects} objects per bin), representation "
             f"{self.representation}, context {self.context}; {self.rounds} round"
             f"{'s' if self.rounds != 1 else ''} of episodes"
+            f"{' in new bins (never trained on)' if self.new_bins else ''}"
         )
         return text
 
@@ -121,6 +124,7 @@ def evaluate(
     pads: bool = False,
     lift_clearance: float | None = None,
     bin_objects: int | None = None,
+    new_bins: bool = False,
 ) -> EvalResult:
     """Evaluate the run's last checkpoint (or that of ``iteration``; 0: the agent the run
     started from, its ``init_agent``, before any training) on its object set (or ``objects``),
@@ -141,9 +145,11 @@ def evaluate(
 
     Lift: exactly ``episodes_per_object`` episodes of each object. Bin: rounds of episodes on
     the run's bins (drawn from ``objects`` instead when given; of ``bin_objects`` objects each
-    instead of the run's when given, then written to ``eval-binN`` by default), balanced over
-    the targets, until every object in them has been the target ``episodes_per_object`` times
-    or more, at most ``max_rounds`` rounds."""
+    instead of the run's when given, then written to ``eval-binN`` by default; with
+    ``new_bins`` bins the run never trained on, ``session.NEW_BINS_SEED_OFFSET``, written to
+    ``eval-new`` / ``eval-binN-new``), balanced over the targets, until every object in them
+    has been the target ``episodes_per_object`` times or more, at most ``max_rounds``
+    rounds."""
     if episodes_per_object < 1:
         raise TrainerError(f"episodes_per_object must be >= 1, got {episodes_per_object}")
     if max_rounds < 1:
@@ -154,6 +160,8 @@ def evaluate(
         out = "eval-sampled" if sample else "eval-start" if iteration == 0 else "eval"
         if bin_objects is not None:
             out = f"{out}-bin{bin_objects}"
+        if new_bins:
+            out = f"{out}-new"
     if not out or Path(out).name != out or out in (".", ".."):
         raise TrainerError(f"out {out!r}: give a folder name inside the run directory, e.g. eval")
     session = EvalSession.load(run_dir, device, iteration, h_bar=h_bar, hold_tips=hold_tips,
@@ -162,6 +170,9 @@ def evaluate(
     if bin_objects is not None and cfg.env.task != "bin":
         raise TrainerError(f"{run_dir} is a {cfg.env.task} run: only a bin run's evaluation "
                            "takes a number of objects per bin")
+    if new_bins and cfg.env.task != "bin":
+        raise TrainerError(f"{run_dir} is a {cfg.env.task} run: only a bin run has bins to "
+                           "draw anew (drop --new-bins)")
     names = session.names(objects)
     collector = SuccessPads() if pads else None
     start_up, endings = StartsFaceUp(), EpisodeEndings()
@@ -171,7 +182,7 @@ def evaluate(
         if cfg.env.task == "bin":
             result, episodes = _evaluate_bin(
                 session, names, episodes_per_object, seed, max_envs, max_rounds, not sample,
-                hooks, bin_objects,
+                hooks, bin_objects, new_bins,
             )
         else:
             episodes = session.lift_episodes(names, episodes_per_object, seed,
@@ -381,12 +392,13 @@ def balanced_targets(assignment: torch.Tensor, counts: torch.Tensor) -> torch.Te
 def _evaluate_bin(
     session: EvalSession, names: list[str], episodes_per_object: int, seed: int,
     max_envs: int, max_rounds: int, deterministic: bool = True, hooks: dict | None = None,
-    bin_objects: int | None = None,
+    bin_objects: int | None = None, new_bins: bool = False,
 ) -> tuple[EvalResult, Episodes]:
-    """The bin evaluation's rounds on the run's bins: the result, and every round's episodes
-    one after another (their ``target`` an index into ``names``)."""
+    """The bin evaluation's rounds on the run's bins (or new ones, ``session.bin_env``): the
+    result, and every round's episodes one after another (their ``target`` an index into
+    ``names``)."""
     cfg = session.cfg
-    env = session.bin_env(min(cfg.env.num_envs, max_envs), names, bin_objects)
+    env = session.bin_env(min(cfg.env.num_envs, max_envs), names, bin_objects, new_bins)
     env.set_seed(seed)
     assignment = env.assignment.cpu()
     held = torch.zeros(len(names), dtype=torch.bool)
@@ -407,6 +419,7 @@ def _evaluate_bin(
         names, episodes.tolist(), successes.tolist(), task="bin",
         representation=cfg.env.representation, bin_objects=env.cfg.bin.num_objects,
         context=cfg.env.context, rounds=len(parts), short=short, absent=absent,
+        new_bins=new_bins,
     )
     return result, Episodes.cat(parts)
 

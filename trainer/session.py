@@ -53,6 +53,9 @@ MAX_ENVS = 1024
 """Envs of one batch of lift evaluation episodes at most (``trainer eval``; ``lift_batches``)."""
 EVAL_SEED = 12345
 """The seed of ``trainer eval``'s episodes (its ``--seed`` default)."""
+NEW_BINS_SEED_OFFSET = 1_000_003
+"""Bins a bin run never trained on (``trainer eval --new-bins``) are the layouts of the run's
+seed plus this: a run trains on the ``[bin] layouts`` of its own seed only."""
 
 ResetHook = Callable[[GraspTask, TensorDictBase], None]
 """``on_reset(env, td)``: see the module's docstring."""
@@ -239,17 +242,22 @@ class EvalSession:
             return make_env(cfg, seed=seed)
 
     def bin_env(self, num_envs: int, objects: Sequence[str] | None = None,
-                bin_objects: int | None = None) -> GraspTask:
+                bin_objects: int | None = None, new_bins: bool = False) -> GraspTask:
         """The bin env of a bin run with ``num_envs`` envs: the bins the run trained on (its
         seed draws the same layouts, whose settled states are cached), from ``objects``
         instead of the run's object set when given, with ``bin_objects`` objects per bin
         instead of the run's (new bins of that size, drawn by the run's seed; the paper
-        evaluates its five-object policy on ten-object bins). Seed its episodes with
+        evaluates its five-object policy on ten-object bins). ``new_bins``: bins the run
+        never trained on, drawn by the run's seed plus ``NEW_BINS_SEED_OFFSET`` (their settled
+        states are settled once and cached like the run's). Seed its episodes with
         ``env.set_seed``."""
         changes = {}
         if bin_objects is not None:
             changes["bin"] = dataclasses.replace(self.cfg.env.bin, num_objects=bin_objects)
-        return make_env(self.env_config(num_envs, objects, **changes), seed=run_streams(self.cfg))
+        streams = (RandomStreams(self.cfg.run.seed + NEW_BINS_SEED_OFFSET,
+                                 legacy=not self.cfg.run.random_streams)
+                   if new_bins else run_streams(self.cfg))
+        return make_env(self.env_config(num_envs, objects, **changes), seed=streams)
 
     @staticmethod
     def lift_batches(names: Sequence[str], episodes_per_object: int,
