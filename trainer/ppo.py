@@ -39,6 +39,7 @@ from trainer.tasks.starts import DamagedStarts, GraspStarts
 from trainer.training import distributed
 from trainer.training.checkpoint import (
     TrainState,
+    agent_source,
     copy_agent_parts,
     init_agent_from,
     load_last_checkpoint,
@@ -327,13 +328,13 @@ def build_parts(
     env = make_env(env_cfg, seed=streams, shard=(world.rank, world.size))
     notes: list[str] = []
     initial_agent, started = None, 0.0
-    agent_source = run.warmup if cfg.run.warmup_steps else cfg.run.init_agent
-    if checkpoint is None and agent_source:
+    source = agent_source(cfg, run)
+    if checkpoint is None and source:
         # Checked before the grasp starts' minutes of recording; built aside from the global
         # generator, so that the run draws what any run of its config draws.
         with torch.random.fork_rng(devices=[]):
             initial_agent = make_agent(env, cfg.ppo)
-        notes.append(init_agent_from(initial_agent, Path(agent_source)))
+        notes.append(init_agent_from(initial_agent, Path(source)))
         if set(cfg.run.init_agent_parts) != set(AGENT_PARTS):
             notes[-1] += f", its {' and '.join(cfg.run.init_agent_parts)} only"
         if cfg.run.warmup_steps:

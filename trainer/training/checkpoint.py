@@ -238,13 +238,19 @@ def load_agent(
     return cfg, agent.to(cfg.env.device)
 
 
+def agent_source(cfg: TrainConfig, run: RunDir) -> Path | str:
+    """Where the run ``run`` of config ``cfg`` takes its first agent from: its warmup run
+    (``[run] warmup_objects``), else its ``init_agent`` ("": a fresh agent)."""
+    return run.warmup if cfg.run.warmup_steps else cfg.run.init_agent
+
+
 def start_agent(agent: Agent, run: RunDir, cfg: TrainConfig) -> None:
     """Load into ``agent`` the agent the run ``run`` (of config ``cfg``) started training from:
     its warmup's or its ``init_agent``'s, as ``trainer.ppo.build_parts`` loaded it (unseen
     features silenced where the run did). What a run's training added is measured against it
     (e.g. a bin run from a lift policy). A run that started from a fresh agent, or from only
     some parts of another, has no such agent to load: a one-line error."""
-    source = run.warmup if cfg.run.warmup_steps else cfg.run.init_agent
+    source = agent_source(cfg, run)
     if not source:
         raise TrainerError(f"{run.path} started from a fresh agent (no init_agent or warmup): "
                            "iteration 0 has no agent to load; pass --iteration 1 or later")
