@@ -435,7 +435,8 @@ def test_eval_of_a_chosen_checkpoint_and_success_criterion(
     for argv, expected in [
         (["--iteration", "7"], f"error: {run.path}: no checkpoint of iteration 7 (it has "
                                "iterations 2, 3)"),
-        (["--iteration", "0"], "error: --iteration 0: must be >= 1"),
+        (["--iteration", "-1"], "error: --iteration -1: must be >= 0"),
+        (["--iteration", "0"], f"error: {run.path} started from a fresh agent"),
         (["--hold-tips", "9"], "error: hold_tips = 9: must be >= 0 and <= 5"),
         (["--h-bar", "0"], "error: h_bar = 0"),
         (["--lift-clearance", "-0.01"], "error: lift_clearance = -0.01: must be >= 0"),
