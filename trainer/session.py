@@ -254,9 +254,8 @@ class EvalSession:
         changes = {}
         if bin_objects is not None:
             changes["bin"] = dataclasses.replace(self.cfg.env.bin, num_objects=bin_objects)
-        streams = (RandomStreams(self.cfg.run.seed + NEW_BINS_SEED_OFFSET,
-                                 legacy=not self.cfg.run.random_streams)
-                   if new_bins else run_streams(self.cfg))
+        streams = (self.streams(self.cfg.run.seed + NEW_BINS_SEED_OFFSET) if new_bins
+                   else run_streams(self.cfg))
         return make_env(self.env_config(num_envs, objects, **changes), seed=streams)
 
     @staticmethod
