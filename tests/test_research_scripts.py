@@ -6,7 +6,8 @@ scripts/start_noise.py (how much exploration noise grasp starts survive),
 scripts/episode_outcomes.py (how each evaluation episode ends), scripts/metrics_blocks.py (a
 training curve in blocks of env steps), scripts/eval_upright.py (an evaluation split by how
 the targets start), scripts/grasp_offset.py (where a policy holds each object) and
-scripts/bin_diagnosis.py (each target's best scripted grasp in clutter, and why it fails)."""
+scripts/bin_diagnosis.py (each target's best scripted grasp in clutter, and why it fails) and
+scripts/video_frames.py (a video's contact sheet)."""
 
 from __future__ import annotations
 
@@ -359,3 +360,34 @@ def test_bin_diagnosis_runs_each_targets_grasp_in_clutter_and_names_each_failure
     assert diagnosis.mechanism("lifted", True, True) == "lifted"
     with pytest.raises(SystemExit, match="--video needs --out"):
         diagnosis.main(["--objects", "builtin_box", "--video"])
+
+
+def test_video_frames_stacks_the_frames_at_even_times(tmp_path: Path) -> None:
+    """scripts/video_frames.py: a 3 s video whose frames change colour each second gives a sheet
+    whose rows are its first, middle and last frames, in that order, each scaled to the
+    sheet's width."""
+    import imageio_ffmpeg
+    import numpy as np
+    from PIL import Image
+
+    colours = [(250, 0, 0), (0, 250, 0), (0, 0, 250)]
+    video = tmp_path / "three.mp4"
+    writer = imageio_ffmpeg.write_frames(str(video), (64, 32), fps=10, macro_block_size=1)
+    writer.send(None)
+    for colour in colours:
+        for _ in range(10):
+            writer.send(np.full((32, 64, 3), colour, np.uint8).tobytes())
+    writer.close()
+
+    video_frames = script("scripts", "video_frames")
+    frames, fps = video_frames.read_frames(video)
+    assert (len(frames), fps) == (30, 10.0)
+    sheet = np.asarray(video_frames.contact_sheet(frames, fps, count=3, width=128))
+    assert sheet.shape == (3 * 64, 128, 3)
+    for row, colour in enumerate(colours):
+        centre = sheet[row * 64 + 40, 64].astype(int)  # below the time label
+        assert np.abs(centre - colour).max() < 40, (row, centre)
+    out = tmp_path / "sheet.jpg"
+    with pytest.raises(SystemExit) as done:
+        video_frames.main([str(video), "--frames", "2", "--width", "64", "--out", str(out)])
+    assert done.value.code == 0 and Image.open(out).size == (64, 64)
