@@ -662,6 +662,47 @@ def test_init_agent_unseen_silence_is_a_config_of_a_started_run(
         dataclasses.replace(silenced, init_agent_unseen="zero")
 
 
+def test_a_policy_without_context_starts_a_run_with_context_unchanged() -> None:
+    """``with_context_added``: a lift policy (no context) grafted onto the same agent with
+    context computes the same actions and values whatever the context holds, and the context's
+    inputs train from the first update; any other difference is not grafted."""
+    from torchrl.data import Composite, Unbounded
+
+    from trainer.config import PPOConfig
+    from trainer.training.checkpoint import with_context_added
+
+    def spec(context: bool) -> Composite:
+        parts = {"proprio": Unbounded((4, 20)), "object": Unbounded((4, 10))}
+        if context:
+            parts |= {"context": Unbounded((4, 3, 10)),
+                      "context_mask": Unbounded((4, 3), dtype=torch.bool)}
+        return Composite(parts, shape=(4,))
+
+    torch.manual_seed(0)
+    lift, bin_agent = Agent(spec(False), PPOConfig()), Agent(spec(True), PPOConfig())
+    with torch.no_grad():  # a trained policy's normalizers, not the identity
+        lift.obs_norm.proprio.update(torch.randn(64, 20) * 3 + 1)
+        lift.obs_norm.object.update(torch.randn(64, 10) * 0.1)
+    grafted = with_context_added(bin_agent.state_dict(), lift.state_dict())
+    assert grafted is not None
+    bin_agent.load_state_dict(grafted)
+    proprio, obj = torch.randn(8, 20), torch.randn(8, 10)
+    context, mask = torch.randn(8, 3, 10) * 5, torch.rand(8, 3) > 0.3
+    loc, scale = bin_agent.policy_net(proprio, obj, context, mask)
+    torch.testing.assert_close((loc, scale), lift.policy_net(proprio, obj))
+    torch.testing.assert_close(bin_agent.value_net(proprio, obj, context, mask),
+                               lift.value_net(proprio, obj))
+    loc.square().sum().backward()
+    first = bin_agent.policy_net.body[0].weight
+    width = PPOConfig().context_hidden[-1]
+    assert first.grad[:, first.shape[1] - width:].abs().sum() > 0  # the context's columns learn
+    # Not a context added: no graft (init_agent_from's one-line misfit error then).
+    assert with_context_added(lift.state_dict(), bin_agent.state_dict()) is None
+    assert with_context_added(lift.state_dict(), lift.state_dict()) is None
+    wider = Agent(spec(True), PPOConfig(hidden=(128, 128, 64)))
+    assert with_context_added(wider.state_dict(), lift.state_dict()) is None
+
+
 def test_init_agent_parts_keeps_the_runs_own_fresh_normalizers(
     killed_run: Path, builtin_data: Config, tmp_path: Path, capsys  # noqa: ANN001
 ) -> None:

@@ -546,7 +546,8 @@ class RunConfig(_Checked):
     init_agent: str = ""
     """A checkpoint file, or a run directory (its last readable checkpoint), whose agent this run
     starts from (networks, action std, normalizers; all else fresh); "": a fresh agent. The
-    agents must match (representation, observations, network sizes)."""
+    agents must match (representation, observations, network sizes); a run with context may
+    start from one without (a lift policy): its context encoder new, silent at the start."""
     init_agent_parts: tuple[str, ...] = AGENT_PARTS
     """Which parts of ``init_agent``'s agent this run takes (``networks``, ``action_std``,
     ``normalizers``); the others start fresh (results/cpu-plate-agent-parts-2026-11-28/)."""

@@ -164,7 +164,8 @@ def init_agent_from(agent: Agent, source: Path) -> str:
     """Load into ``agent`` the networks and normalizers of the checkpoint ``source`` (a file, or
     a run directory: its last readable checkpoint) (``[run] init_agent``); returns a line for the
     run's log. An agent of another shape (representation, task, network sizes) is a one-line
-    error naming the first tensor that differs."""
+    error naming the first tensor that differs; an agent without context starts one with
+    (``with_context_added``)."""
     source = Path(source)
     if source.is_dir():
         state = load_last_checkpoint(RunDir(source), map_location="cpu")
@@ -177,6 +178,11 @@ def init_agent_from(agent: Agent, source: Path) -> str:
     else:
         raise TrainerError(f"init_agent {source}: no such checkpoint file or run directory")
     own, theirs = agent.state_dict(), state["agent"]
+    grafted = with_context_added(own, theirs)
+    if grafted is not None:
+        agent.load_state_dict(grafted)
+        return (f"agent: initialised from {source} (iteration {state['iteration']}), a policy "
+                f"without context: its context encoder new, silent at the start")
     for name in sorted(set(own) | set(theirs)):
         mine = tuple(own[name].shape) if name in own else "absent"
         its = tuple(theirs[name].shape) if name in theirs else "absent"
@@ -188,6 +194,46 @@ def init_agent_from(agent: Agent, source: Path) -> str:
             )
     agent.load_state_dict(theirs)
     return f"agent: initialised from {source} (iteration {state['iteration']})"
+
+
+def with_context_added(
+    own: dict[str, torch.Tensor], theirs: dict[str, torch.Tensor],
+) -> dict[str, torch.Tensor] | None:
+    """``theirs`` (the state dict of an agent that sees no context, a lift policy say) grafted
+    onto ``own`` (the same agent with ``context``), or None if ``own`` adds no context to
+    ``theirs`` or differs from it otherwise.
+
+    Every tensor they share is theirs; the context's encoder and normalizer keep ``own``'s
+    fresh values; each first body layer takes their weights for the inputs they had and 0 for
+    the context features appended after them (``Encoder.forward``'s order). The grafted agent
+    computes exactly what theirs computed, whatever the context holds, and those zero weights
+    train from the first update: a bin run with context starts from the same policy as its
+    pair without, so the pair measures the context alone."""
+    new_parts = [name for name in own if name not in theirs]
+    if not new_parts or any("context" not in name.split(".") for name in new_parts):
+        return None
+    if any(name not in own for name in theirs):
+        return None
+    # the context encoder's output width: the rows of its last linear layer
+    layers = [(int(name.split(".")[-2]), own[name].shape[0]) for name in new_parts
+              if ".encoder.context." in name and name.endswith(".weight")]
+    if not layers:
+        return None
+    context_width = max(layers)[1]
+    merged = dict(own)
+    for name, their_value in theirs.items():
+        mine = own[name]
+        if mine.shape == their_value.shape:
+            merged[name] = their_value
+        elif (name.endswith("body.0.weight") and mine.dim() == 2
+              and mine.shape[0] == their_value.shape[0]
+              and mine.shape[1] - their_value.shape[1] == context_width):
+            widened = torch.zeros_like(mine)
+            widened[:, : their_value.shape[1]] = their_value
+            merged[name] = widened
+        else:
+            return None
+    return merged
 
 
 def agent_part(key: str) -> str:
