@@ -7,7 +7,8 @@
 # checkpoints/last.pt) and, once the arm reached its budget, evaluates it (50 episodes per
 # object, eval/ kept beside). An arm may end in a named variant of the network, an arm of its own:
 # -shared ([ppo] shared_encoder = true: one encoder for the policy and the value), e.g.
-# pc512-sdf-s0-shared. Arms run one after the other; start two of these for the two cores:
+# pc512-sdf-s0-shared; -authors (that, with the per-point MLP of the authors' public code,
+# 16-32-64: pc128 at 0.5 of env-only stepping, results/bench-pointnet-2026-11-29/). Arms run one after the other; start two of these for the two cores:
 #
 #   nohup scripts/comparison_runs.sh 240 sq-sdf-s0 sdf-sdf-s1 > logs/cmp-a.log 2>&1 &
 #   nohup scripts/comparison_runs.sh 240 com-sdf-s0 bbox-com-s0 > logs/cmp-b.log 2>&1 &
@@ -25,7 +26,8 @@ for ARM in "$@"; do
   case "${VARIANT:-}" in
     "") SETS=() ;;
     shared) SETS=(--set ppo.shared_encoder=true) ;;
-    *) echo "$ARM: unknown variant '$VARIANT' (known: shared)" >&2; exit 2 ;;
+    authors) SETS=(--set ppo.shared_encoder=true --set "ppo.pointnet_hidden=[16,32,64]") ;;
+    *) echo "$ARM: unknown variant '$VARIANT' (known: shared, authors)" >&2; exit 2 ;;
   esac
   # The arm's chunk, kept in results/ (chunked_run.sh): its budget is its total_steps, so
   # no budget in minutes, and no evaluation until then (at it: 50 episodes per object).
