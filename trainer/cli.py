@@ -584,8 +584,9 @@ def _resume(run_dir: Path, steps: int | None, minutes: float | None) -> None:
 @click.option("--max-rounds", default=20, show_default=True,
               help="Bin task: rounds of episodes at most, however few an object has.")
 @click.option("--bin-objects", type=int, default=None,
-              help="Bin task: new bins of this many objects, drawn by the run's seed (the paper "
-              "evaluates its 5-object policy on 10) [the run's bins; out: eval-binN].")
+              help="Bin task: bins of this many objects, drawn by the run's seed (the paper "
+              "evaluates its 5-object policy on 10; the run's own size draws the run's own "
+              "bins) [the run's bins; out: eval-binN].")
 @click.option("--new-bins", is_flag=True,
               help="Bin task: bins the run never trained on (its bins are its seed's [bin] "
               "layouts; these, another seed's) [out: eval-new, eval-binN-new].")
