@@ -190,8 +190,12 @@ class PolicyStepper(Stepper):
 
 
 def policy_throughput(args: argparse.Namespace) -> None:
-    """Section 4: the run's env config and policy, the run's own physics and each variant's,
-    built together and timed in alternating rounds."""
+    """Section 4: the run's env config and policy, the run's own physics and each variant's.
+
+    Each configuration is timed once as soon as it is built (its line printed then), then in
+    ``--rounds`` - 1 alternating rounds; the table is printed at the end, or with what was
+    measured when interrupted (SIGINT: a device call's deadline), so a slow build of a late
+    configuration loses none of the earlier ones' figures."""
     try:
         cfg, agent = load_agent(Path(args.policy), args.device)
     except (TrainerError, FileNotFoundError) as exc:
@@ -201,24 +205,38 @@ def policy_throughput(args: argparse.Namespace) -> None:
     if args.data_dir:
         base["data_dir"] = args.data_dir
     configs = variants(args)
-    steppers: dict[str, PolicyStepper] = {}
-    for label, extra in configs:
-        env_cfg = override(cfg.env, {**base, **extra}, {})
-        steppers[label] = PolicyStepper(make_env(env_cfg), agent.actor, args.steps, args.advance)
-    for _ in range(args.rounds):
-        for stepper in steppers.values():
-            stepper.block()
-    first = configs[0][0]
     print(f"{args.policy}: {cfg.env.task}, {len(resolve_names(cfg.env.objects, cfg.env.data_dir))}"
           f" objects, repr {cfg.env.representation}, {n} envs, {args.backend} on {args.device}; "
-          f"{args.advance} policy steps, then {args.rounds} rounds of {args.steps}")
+          f"{args.advance} policy steps, then {args.rounds} rounds of {args.steps}", flush=True)
+    steppers: dict[str, PolicyStepper] = {}
+    interrupted = False
+    try:
+        for label, extra in configs:
+            env_cfg = override(cfg.env, {**base, **extra}, {})
+            stepper = PolicyStepper(make_env(env_cfg), agent.actor, args.steps, args.advance)
+            stepper.block()
+            steppers[label] = stepper
+            print(f"  built and timed once: {stepper.env_rates[0]:.0f} policy+env steps/s, "
+                  f"{stepper.raw_rates[0]:.0f} phys, 1st step {stepper.first_step_s:.1f} s: "
+                  f"{label}", flush=True)
+        for _ in range(args.rounds - 1):
+            for stepper in steppers.values():
+                stepper.block()
+    except KeyboardInterrupt:
+        interrupted = True
+    if not steppers:
+        raise SystemExit("env_throughput: interrupted before any configuration was timed")
+    rounds = min(len(s.env_rates) for s in steppers.values())
     print(f"{'policy+env steps/s':>18} {'phys steps/s':>13} {'ratio':>6} {'1st step s':>10} "
           f"{'contacts':>9} {'rows':>7} {'/ first':>8}  config")
+    first = next(iter(steppers))
     for label, stepper in steppers.items():
         env_rate = statistics.median(stepper.env_rates)
         raw_rate = statistics.median(stepper.raw_rates)
         load = stepper.env.backend.contact_load()
-        rel = paired(steppers, first, label)  # the first against itself: 1.0
+        # the first against itself: 1.0; over the rounds every configuration completed
+        rel = statistics.median(y / x for x, y in zip(
+            steppers[first].env_rates[:rounds], stepper.env_rates[:rounds], strict=True))
         print(f"{env_rate:>18.0f} {raw_rate:>13.0f} {env_rate / raw_rate:>6.2f} "
               f"{stepper.first_step_s:>10.2f} {load.get('contacts', float('nan')):>9.1f} "
               f"{load.get('constraint rows', float('nan')):>7.1f} {rel:>8.2f}  {label}")
@@ -228,6 +246,10 @@ def policy_throughput(args: argparse.Namespace) -> None:
     print("policy+env: the trained policy's deterministic action, then the env step with resets; "
           "phys: step_held; contacts, rows: mean per env at the end (active contacts, constraint "
           "rows); / first: the per-round median of env steps/s over the first configuration's")
+    if interrupted:
+        done = len(steppers)
+        print(f"interrupted: {done} of {len(configs)} configurations timed, {rounds} round(s) "
+              "each in the table")
 
 
 def task_config(args: argparse.Namespace, task: str, envs: int, rep: str, objects: str,
