@@ -11,10 +11,12 @@ states, and Warp's CUDA kernel cache if an earlier chunk brought one back; all i
 tar split into parts that each fit one call beside the working tree. It prints the device
 calls to make: one per part, the last of them the chunk (``scripts/gpu-campaign.sh``):
 
+    python scripts/gpu_campaign.py slim      # results/ (runs' checkpoints) out of the calls
     python scripts/gpu_campaign.py pack
     # device run, carry [.gpu-pack/carry/part-1]: bash scripts/gpu-campaign.sh stage
     # device run, carry [.gpu-pack/carry/part-2]: bash scripts/gpu-campaign.sh run
     python scripts/gpu_campaign.py collect <files_at of the last call>
+    python scripts/gpu_campaign.py unslim    # before committing anything
 
 Calls after the first must come within the machine's idle release (30 s), or the staged parts
 are lost with it. ``collect`` puts the chunk's checkpoint, metrics and evaluation into
@@ -79,14 +81,56 @@ def run(cmd: list[str], **kwargs) -> None:  # noqa: ANN003
     subprocess.run(cmd, check=True, **kwargs)
 
 
-def tree_bytes() -> int:
+def tree_bytes(root: Path = ROOT) -> int:
     """What the working tree sends with each device call: tracked and untracked-not-ignored
     files."""
     out = subprocess.run(
         ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
-        cwd=ROOT, check=True, capture_output=True,
+        cwd=root, check=True, capture_output=True,
     ).stdout.decode()
-    return sum((ROOT / p).stat().st_size for p in out.split("\0") if p and (ROOT / p).is_file())
+    return sum((root / p).stat().st_size for p in out.split("\0") if p and (root / p).is_file())
+
+
+SLIM_BLOCK = ("# gpu_campaign slim: results/ stays here (scripts/gpu_campaign.py unslim)\n"
+              "/results/*\n!/results/gpu-table1-campaign/\n# end gpu_campaign slim\n")
+"""The lines ``slim`` adds to the repository's own exclude file (never to .gitignore)."""
+
+
+def git(root: Path, *args: str, stdin: str | None = None) -> str:
+    return subprocess.run(["git", *args], cwd=root, check=True, capture_output=True, text=True,
+                          input=stdin).stdout
+
+
+def slim(root: Path = ROOT) -> None:
+    """Keep results/ (the runs' checkpoints: ~200 MB by 2026-11-29) out of what a device call
+    carries, the campaign's own folder excepted: its files leave the index (not the disk) and
+    the repository's exclude file ignores them. Nothing is committed; ``unslim`` puts the index
+    back. Refuses while changes are staged, so that ``unslim`` loses none."""
+    exclude = root / git(root, "rev-parse", "--git-path", "info/exclude").strip()
+    text = exclude.read_text() if exclude.is_file() else ""
+    if SLIM_BLOCK in text:
+        print(f"already slim: the tree a device call carries is {tree_bytes(root) / 2**20:.1f} MiB")
+        return
+    if subprocess.run(["git", "diff", "--cached", "--quiet"], cwd=root).returncode != 0:
+        raise SystemExit("gpu_campaign: changes are staged: commit or unstage them before slim")
+    names = [n for n in git(root, "ls-files", "results").splitlines()
+             if not n.startswith("results/gpu-table1-campaign/")]
+    if names:
+        git(root, "rm", "-r", "--cached", "-q", "--pathspec-from-file=-", stdin="\n".join(names))
+    exclude.parent.mkdir(parents=True, exist_ok=True)
+    exclude.write_text(text + SLIM_BLOCK)
+    print(f"the tree a device call carries: {tree_bytes(root) / 2**20:.1f} MiB ({len(names)} "
+          "files of results/ out of the index); commit nothing until `python "
+          "scripts/gpu_campaign.py unslim`")
+
+
+def unslim(root: Path = ROOT) -> None:
+    """Undo ``slim``: results/ back in the index as committed, the exclude lines removed."""
+    git(root, "reset", "-q", "--", "results")
+    exclude = root / git(root, "rev-parse", "--git-path", "info/exclude").strip()
+    if exclude.is_file():
+        exclude.write_text(exclude.read_text().replace(SLIM_BLOCK, ""))
+    print(f"results/ is tracked again; the tree: {tree_bytes(root) / 2**20:.1f} MiB")
 
 
 def objects_and_config() -> tuple[list[str], dict]:
@@ -169,7 +213,8 @@ def pack(args: argparse.Namespace) -> None:
     build_data(PACK / "data", names, args.source, args.sdf_resolution)
     budget = CALL_LIMIT - tree_bytes() - MARGIN
     if budget < 8 * 2**20:
-        raise SystemExit(f"gpu_campaign: the working tree leaves only {budget >> 20} MiB per call")
+        raise SystemExit(f"gpu_campaign: the working tree leaves only {budget >> 20} MiB per call: "
+                         "`python scripts/gpu_campaign.py slim` keeps results/ out of it")
     shutil.rmtree(CARRY, ignore_errors=True)
     CARRY.mkdir(parents=True)
     blob = PACK / "payload.tar.xz"
@@ -317,6 +362,10 @@ def main() -> None:
     p.add_argument("--pack-dir", type=Path, default=PACK,
                    help="where the kernel cache goes for the next pack [.gpu-pack]")
     p.set_defaults(func=collect)
+    p = sub.add_parser("slim", help="keep results/ (but the campaign's) out of device calls")
+    p.set_defaults(func=lambda _: slim())
+    p = sub.add_parser("unslim", help="undo slim: results/ tracked again as committed")
+    p.set_defaults(func=lambda _: unslim())
     p = sub.add_parser("check", help="run the device side here, on the CPU")
     p.add_argument("--python", default=sys.executable,
                    help="a Python 3.12 with torch, as on the GPU machines")

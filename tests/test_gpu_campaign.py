@@ -114,3 +114,45 @@ checkpoint_every = 1
     chunks = list(csv.DictReader((results / "chunks.csv").read_text().splitlines()))
     assert [int(c["iteration"]) for c in chunks] == [2, 4]
     assert not (results / "eval-iter0004.json").exists()
+
+
+def test_slim_keeps_results_out_of_device_calls_and_unslim_restores(tmp_path: Path) -> None:
+    """A device call carries at most 64 MiB of tree; results/ holds the runs' checkpoints.
+    slim takes them out of what travels (the campaign's folder stays), touching no file and
+    committing nothing; unslim leaves the repository as it was."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("gpu_campaign",
+                                                  ROOT / "scripts" / "gpu_campaign.py")
+    campaign = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(campaign)
+
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], cwd=tmp_path, check=True, capture_output=True,
+                              text=True).stdout
+
+    git("init", "-q")
+    files = {"README.md": 10, "results/run/last.pt": 200_000,
+             "results/gpu-table1-campaign/run/last.pt": 30_000}
+    for name, size in files.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_bytes(b"x" * size)
+    git("add", ".")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-q", "-m", "m")
+    whole = campaign.tree_bytes(tmp_path)
+    assert whole == sum(files.values())
+
+    campaign.slim(tmp_path)
+    assert campaign.tree_bytes(tmp_path) == 30_010  # the campaign's run travels, the rest not
+    assert all((tmp_path / name).is_file() for name in files)
+    campaign.slim(tmp_path)  # twice is once
+    exclude = tmp_path / git("rev-parse", "--git-path", "info/exclude").strip()
+    assert exclude.read_text().count("/results/*") == 1
+    campaign.unslim(tmp_path)
+    assert campaign.tree_bytes(tmp_path) == whole
+    assert git("status", "--porcelain") == ""
+
+    (tmp_path / "README.md").write_text("staged")
+    git("add", "README.md")
+    with pytest.raises(SystemExit, match="staged"):
+        campaign.slim(tmp_path)

@@ -95,7 +95,8 @@ class PhysicsConfig(_Checked):
     noslip_iterations: int = bounded(5, ge=0)
     """Passes of MuJoCo's no-slip solver after the main one (0: off): removes the creep of soft
     frictional contacts that lets pinched or held objects slide out; costs ~10 % (lift) to
-    ~25 % (bin) of the CPU's env steps/s (results/noslip-iterations-2026-11-26/)."""
+    ~25 % (bin) of the CPU's env steps/s (results/noslip-iterations-2026-11-26/) and 70 % of
+    MuJoCo Warp's step on a GPU (results/bench-gpu-step-2026-11-29/)."""
     sleep: bool = False
     """CPU backend: let objects at rest sleep (MuJoCo's sleeping islands): the bin up to ~2x
     faster (``bench/env_throughput.py --sleep``; results/cpu-bin5-six/); a resumed run does not
