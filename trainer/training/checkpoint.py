@@ -178,22 +178,21 @@ def init_agent_from(agent: Agent, source: Path) -> str:
     else:
         raise TrainerError(f"init_agent {source}: no such checkpoint file or run directory")
     own, theirs = agent.state_dict(), state["agent"]
-    grafted = with_context_added(own, theirs)
-    if grafted is not None:
-        agent.load_state_dict(grafted)
-        return (f"agent: initialised from {source} (iteration {state['iteration']}), a policy "
-                f"without context: its context encoder new, silent at the start")
-    for name in sorted(set(own) | set(theirs)):
-        mine = tuple(own[name].shape) if name in own else "absent"
-        its = tuple(theirs[name].shape) if name in theirs else "absent"
-        if mine != its:
-            raise TrainerError(
-                f"init_agent {source}: its agent does not fit this run's ({name}: {its} there, "
-                f"{mine} here): start from a run with the same representation, task and [ppo] "
-                f"network sizes"
-            )
-    agent.load_state_dict(theirs)
-    return f"agent: initialised from {source} (iteration {state['iteration']})"
+    grafted, note = with_context_added(own, theirs), (
+        ", a policy without context: its context encoder new, silent at the start")
+    if grafted is None:
+        grafted, note = theirs, ""
+        for name in sorted(set(own) | set(theirs)):
+            mine = tuple(own[name].shape) if name in own else "absent"
+            its = tuple(theirs[name].shape) if name in theirs else "absent"
+            if mine != its:
+                raise TrainerError(
+                    f"init_agent {source}: its agent does not fit this run's ({name}: {its} "
+                    f"there, {mine} here): start from a run with the same representation, task "
+                    f"and [ppo] network sizes"
+                )
+    agent.load_state_dict(grafted)
+    return f"agent: initialised from {source} (iteration {state['iteration']}){note}"
 
 
 def with_context_added(
