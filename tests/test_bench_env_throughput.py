@@ -75,6 +75,53 @@ def test_policy_driven_rows_per_variant(builtin_data: Config, tmp_path: Path) ->
         assert contacts >= 1.0  # the box rests on the table in every env, at least
 
 
+def test_an_interrupted_policy_bench_prints_what_it_timed(
+    builtin_data: Config, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A device call's deadline interrupts the bench (SIGINT) while a later configuration is
+    being built: the configurations timed so far still get their table, marked interrupted."""
+    from trainer.config import load_train_config
+    from trainer.ppo import train
+
+    cfg = load_train_config(
+        env={"num_envs": 4, "objects": "builtin_box", "representation": "bbox",
+             "data_dir": builtin_data.data_dir, "max_steps": 12, "compile": False},
+        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
+             "hidden": (16, 16)},
+        run={"total_steps": 32, "checkpoint_every": 1, "seed": 0},
+    )
+    run = train(cfg, tmp_path / "run", progress=False)
+    spec = importlib.util.spec_from_file_location("env_throughput", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    built = []
+
+    class Interrupted(module.PolicyStepper):
+        def __init__(self, *args: object) -> None:
+            if built:
+                raise KeyboardInterrupt  # as SIGINT arrives while the second one is built
+            built.append(1)
+            super().__init__(*args)
+
+    monkeypatch.setattr(module, "PolicyStepper", Interrupted)
+    monkeypatch.setattr(sys, "argv", [str(SCRIPT), "--policy", str(run.path), "--envs", "3",
+                                      "--advance", "2", "--steps", "2", "--rounds", "2",
+                                      "--variant", "physics.noslip_iterations=0"])
+    import torch
+
+    threads = torch.get_num_threads()
+    try:
+        module.main()
+    finally:
+        torch.set_num_threads(threads)
+    lines = capsys.readouterr().out.splitlines()
+    header = next(i for i, line in enumerate(lines) if line.startswith("policy+env steps/s"))
+    assert lines[header + 1].split()[-1] == "default"
+    assert float(lines[header + 1].split()[0]) > 0
+    assert lines[-1] == "interrupted: 1 of 2 configurations timed, 1 round(s) each in the table"
+
+
 def test_unknown_run_or_key_is_one_line(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
