@@ -234,9 +234,7 @@ def policy_throughput(args: argparse.Namespace) -> None:
         env_rate = statistics.median(stepper.env_rates)
         raw_rate = statistics.median(stepper.raw_rates)
         load = stepper.env.backend.contact_load()
-        # the first against itself: 1.0; over the rounds every configuration completed
-        rel = statistics.median(y / x for x, y in zip(
-            steppers[first].env_rates[:rounds], stepper.env_rates[:rounds], strict=True))
+        rel = paired(steppers, first, label)  # the first against itself: 1.0
         print(f"{env_rate:>18.0f} {raw_rate:>13.0f} {env_rate / raw_rate:>6.2f} "
               f"{stepper.first_step_s:>10.2f} {load.get('contacts', float('nan')):>9.1f} "
               f"{load.get('constraint rows', float('nan')):>7.1f} {rel:>8.2f}  {label}")
@@ -247,9 +245,8 @@ def policy_throughput(args: argparse.Namespace) -> None:
           "phys: step_held; contacts, rows: mean per env at the end (active contacts, constraint "
           "rows); / first: the per-round median of env steps/s over the first configuration's")
     if interrupted:
-        done = len(steppers)
-        print(f"interrupted: {done} of {len(configs)} configurations timed, {rounds} round(s) "
-              "each in the table")
+        print(f"interrupted: {len(steppers)} of {len(configs)} configurations timed, {rounds} "
+              "round(s) each in the table")
 
 
 def task_config(args: argparse.Namespace, task: str, envs: int, rep: str, objects: str,
@@ -274,9 +271,11 @@ def task_config(args: argparse.Namespace, task: str, envs: int, rep: str, object
 
 def paired(steppers: dict, a: object, b: object) -> float:
     """b's env steps/s over a's: the median of the per-round ratios (the blocks of a round ran
-    back to back)."""
+    back to back), over the rounds both completed (an interrupted bench: fewer for some)."""
+    rounds = min(len(steppers[a].env_rates), len(steppers[b].env_rates))
     return statistics.median(
-        y / x for x, y in zip(steppers[a].env_rates, steppers[b].env_rates, strict=True)
+        y / x for x, y in zip(steppers[a].env_rates[:rounds], steppers[b].env_rates[:rounds],
+                              strict=True)
     )
 
 

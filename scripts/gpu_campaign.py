@@ -101,12 +101,17 @@ def git(root: Path, *args: str, stdin: str | None = None) -> str:
                           input=stdin).stdout
 
 
+def exclude_file(root: Path) -> Path:
+    """The repository's own exclude file (``.git/info/exclude``, or a worktree's)."""
+    return root / git(root, "rev-parse", "--git-path", "info/exclude").strip()
+
+
 def slim(root: Path = ROOT) -> None:
     """Keep results/ (the runs' checkpoints: ~200 MB by 2026-11-29) out of what a device call
     carries, the campaign's own folder excepted: its files leave the index (not the disk) and
     the repository's exclude file ignores them. Nothing is committed; ``unslim`` puts the index
     back. Refuses while changes are staged, so that ``unslim`` loses none."""
-    exclude = root / git(root, "rev-parse", "--git-path", "info/exclude").strip()
+    exclude = exclude_file(root)
     text = exclude.read_text() if exclude.is_file() else ""
     if SLIM_BLOCK in text:
         print(f"already slim: the tree a device call carries is {tree_bytes(root) / 2**20:.1f} MiB")
@@ -127,7 +132,7 @@ def slim(root: Path = ROOT) -> None:
 def unslim(root: Path = ROOT) -> None:
     """Undo ``slim``: results/ back in the index as committed, the exclude lines removed."""
     git(root, "reset", "-q", "--", "results")
-    exclude = root / git(root, "rev-parse", "--git-path", "info/exclude").strip()
+    exclude = exclude_file(root)
     if exclude.is_file():
         exclude.write_text(exclude.read_text().replace(SLIM_BLOCK, ""))
     print(f"results/ is tracked again; the tree: {tree_bytes(root) / 2**20:.1f} MiB")
@@ -256,8 +261,7 @@ def print_plan(parts: list[dict]) -> None:
 
 
 def git_head() -> str:
-    return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, check=True,
-                          capture_output=True, text=True).stdout.strip()
+    return git(ROOT, "rev-parse", "--short", "HEAD").strip()
 
 
 # --- collect ------------------------------------------------------------------------------

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from geomprep.config import Config
+from tests.tiny_runs import script, tiny_run
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "bench" / "env_throughput.py"
@@ -45,17 +46,7 @@ def bench_here(
 
 
 def test_policy_driven_rows_per_variant(builtin_data: Config, tmp_path: Path) -> None:
-    from trainer.config import load_train_config
-    from trainer.ppo import train
-
-    cfg = load_train_config(
-        env={"num_envs": 4, "objects": "builtin_box", "representation": "bbox",
-             "data_dir": builtin_data.data_dir, "max_steps": 12, "compile": False},
-        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
-             "hidden": (16, 16)},
-        run={"total_steps": 32, "checkpoint_every": 1, "seed": 0},
-    )
-    run = train(cfg, tmp_path / "run", progress=False)
+    run = tiny_run(builtin_data, tmp_path / "run", "builtin_box", compile=False)
     done = bench("--policy", str(run.path), "--envs", "3", "--advance", "4", "--steps", "2",
                  "--rounds", "2", "--variant", "physics.noslip_iterations=0")
     assert done.returncode == 0, done.stderr[-2000:]
@@ -81,20 +72,8 @@ def test_an_interrupted_policy_bench_prints_what_it_timed(
 ) -> None:
     """A device call's deadline interrupts the bench (SIGINT) while a later configuration is
     being built: the configurations timed so far still get their table, marked interrupted."""
-    from trainer.config import load_train_config
-    from trainer.ppo import train
-
-    cfg = load_train_config(
-        env={"num_envs": 4, "objects": "builtin_box", "representation": "bbox",
-             "data_dir": builtin_data.data_dir, "max_steps": 12, "compile": False},
-        ppo={"frames_per_env": 8, "minibatches": 2, "min_minibatch": 1, "epochs": 1,
-             "hidden": (16, 16)},
-        run={"total_steps": 32, "checkpoint_every": 1, "seed": 0},
-    )
-    run = train(cfg, tmp_path / "run", progress=False)
-    spec = importlib.util.spec_from_file_location("env_throughput", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    run = tiny_run(builtin_data, tmp_path / "run", "builtin_box", compile=False)
+    module = script("bench", "env_throughput")
     built = []
 
     class Interrupted(module.PolicyStepper):

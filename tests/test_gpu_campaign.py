@@ -16,6 +16,7 @@ import pytest
 import torch
 
 from geomprep.config import Config
+from tests.tiny_runs import script
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -120,12 +121,7 @@ def test_slim_keeps_results_out_of_device_calls_and_unslim_restores(tmp_path: Pa
     """A device call carries at most 64 MiB of tree; results/ holds the runs' checkpoints.
     slim takes them out of what travels (the campaign's folder stays), touching no file and
     committing nothing; unslim leaves the repository as it was."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("gpu_campaign",
-                                                  ROOT / "scripts" / "gpu_campaign.py")
-    campaign = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(campaign)
+    campaign = script("scripts", "gpu_campaign")
 
     def git(*args: str) -> str:
         return subprocess.run(["git", *args], cwd=tmp_path, check=True, capture_output=True,
