@@ -60,6 +60,32 @@ def ycb_mesh(name: str) -> trimesh.Trimesh:
     return trimesh.Trimesh(norm.vertices, norm.faces, process=False)
 
 
+ONE_WORKER_MODULES = ("tests/test_warp.py",)
+"""Test modules whose tests all run on one test worker, one after the other. MuJoCo Warp
+compiles its kernels on a backend's first step and keeps them on disk: two workers that each
+began with a Warp test compiled the same kernels side by side (45 s of a core each on a fresh
+machine); on one worker the later tests load them."""
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
+    """With workers (README: ``-n 2``) and xdist's default ``load``: the tests of each of
+    ``ONE_WORKER_MODULES`` as one unit of work, every other test a unit of its own (xdist's
+    ``loadscope`` with these scopes). xdist's own ``loadgroup`` would do it with a mark, but
+    with pytest 9 its workers no longer tag the test ids (they set ``_nodeid``, which pytest 9's
+    ``nodeid`` does not read), so it ran the group's tests on both workers."""
+    if config.getvalue("dist") != "load":
+        return None  # another --dist: xdist's own scheduler
+    from xdist.scheduler import LoadScopeScheduling
+
+    class ModulesOnOneWorker(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.partition("::")[0]
+            return module if module in ONE_WORKER_MODULES else nodeid
+
+    return ModulesOnOneWorker(config, log)
+
+
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """The tests marked ``slow`` run first (otherwise in their order): with workers (README:
     ``-n 2``) the longest ones then start early instead of one ending the run alone while the
