@@ -36,7 +36,7 @@ def test_docs_config_md_is_up_to_date() -> None:
 
 def test_every_key_has_a_short_docstring_whose_links_exist() -> None:
     keys = all_keys()
-    assert len(keys) == 123 and len({k.path for k in keys}) == 123
+    assert len(keys) == 124 and len({k.path for k in keys}) == 124
     for key in keys:
         doc = field_docs(key.owner).get(key.name)
         assert doc, f"{key.path} has no docstring"
@@ -92,7 +92,7 @@ def test_trainer_config_prints_a_paper_key_and_a_project_key(
     code, out, _ = invoke(["config", "--paper"], monkeypatch, capsys)
     assert code == 0 and " ours\n" not in out and out.count("paper: ") == len(PAPER_KEYS)
     code, out, _ = invoke(["config"], monkeypatch, capsys)
-    assert code == 0 and out.count("\n      ") == 123
+    assert code == 0 and out.count("\n      ") == 124
     code, _, err = invoke(["config", "no_such_key"], monkeypatch, capsys)
     assert code == 1 and err == (
         "error: no key matches no_such_key: trainer config with no argument lists them all"

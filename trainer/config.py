@@ -97,6 +97,11 @@ class PhysicsConfig(_Checked):
     frictional contacts that lets pinched or held objects slide out; costs ~10 % (lift) to
     ~25 % (bin) of the CPU's env steps/s (results/noslip-iterations-2026-11-26/) and 70 % of
     MuJoCo Warp's step on a GPU (results/bench-gpu-step-2026-11-29/)."""
+    memory_mb: float = bounded(0.0, ge=0)
+    """MB of each env's MuJoCo arena (contacts, constraints, solver scratch: ``<size memory>``);
+    0: MuJoCo's estimate (16 MB for a bin of five YCB objects). An env whose constraints outgrow
+    it cannot be stepped (MuJoCo C: ``mj_stackAlloc: out of memory``): it is reset and the trainer
+    says so once per iteration. Address space, resident only as used."""
     sleep: bool = False
     """CPU backend: let objects at rest sleep (MuJoCo's sleeping islands): the bin up to ~2x
     faster (``bench/env_throughput.py --sleep``; results/cpu-bin5-six/); a resumed run does not

@@ -98,6 +98,8 @@ def _options(spec: mujoco.MjSpec, cfg: EnvConfig) -> None:
     spec.option.ls_iterations = cfg.physics.ls_iterations
     spec.option.impratio = cfg.physics.impratio
     spec.option.noslip_iterations = cfg.physics.noslip_iterations
+    if cfg.physics.memory_mb:
+        spec.memory = int(cfg.physics.memory_mb * 2**20)
     spec.visual.global_.offwidth = 640
     spec.visual.global_.offheight = 480
 

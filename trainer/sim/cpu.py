@@ -13,6 +13,12 @@ instead, one persistent batch per model (one MjData per env, which sleeping isla
 ``rollout`` starts every control period from the saved state, which wakes every object). The
 state array stays the source of truth: each step copies it into the batches' rows and back. The
 copy is bitwise, so an island asleep stays asleep; a reset writes new values and wakes it.
+
+**A state MuJoCo cannot step.** A pile of objects can make more constraint rows than a model's
+arena holds; MuJoCo then stops with an error (``mj_stackAlloc: out of memory``) instead of
+stepping. Such an env is left where it was: its clock does not advance, so it counts as
+stalled, the task resets it (``unstable``), and ``drain_warnings`` says how many there were and
+which knob to raise (``[physics] memory_mb``). The other envs step as usual.
 """
 
 from __future__ import annotations
@@ -26,7 +32,7 @@ import mujoco
 import numpy as np
 import torch
 from mujoco import rollout
-from mujoco.batch import Batch
+from mujoco.batch import Batch, SimulationError
 
 from trainer.sim.backend import MAX_SPEED, SimBackend
 
@@ -117,6 +123,11 @@ class MujocoCPUBackend(SimBackend):
         self._pool = ThreadPoolExecutor(self.nthread, thread_name_prefix="mujoco")
         self._cache: dict[str, torch.Tensor] = {}
         self._stalled = np.zeros(self.num_envs, dtype=bool)
+        # Envs MuJoCo refused to step in the last period (written by the pool threads, each its
+        # own rows), how many since the last drain_warnings, and MuJoCo's message.
+        self._refused = np.zeros(self.num_envs, dtype=bool)
+        self._refusals = 0
+        self._refusal = ""
         self.sleep = sleep
         self._batches: list[tuple[np.ndarray, Batch]] = []
         if sleep:
@@ -153,8 +164,8 @@ class MujocoCPUBackend(SimBackend):
             self._local.datas[k] = mujoco.MjData(self.models[k])
         return self._local.runner, self._local.datas[k]
 
-    def _run(self, chunk: tuple[int, int, int]) -> None:
-        k, start, stop = chunk
+    def _rollout(self, k: int, start: int, stop: int, out: np.ndarray) -> None:
+        """Envs ``start:stop`` (all of model ``k``) by one control period, into ``out``."""
         runner, data = self._thread_local(k)
         runner.rollout(
             [self.models[k]] * (stop - start),
@@ -163,15 +174,41 @@ class MujocoCPUBackend(SimBackend):
             self._control[start:stop],
             control_spec=CONTROL,
             nstep=self.substeps,
-            state=self._out[start:stop],
+            state=out,
             skip_checks=True,
         )
+
+    def _run(self, chunk: tuple[int, int, int]) -> None:
+        k, start, stop = chunk
+        try:
+            self._rollout(k, start, stop, self._out[start:stop])
+        except mujoco.FatalError:
+            # One env of the chunk could not be stepped, and rollout gave up on the rest:
+            # each env again on its own (the same states and controls, so the same result).
+            for i in range(start, stop):
+                self._run_alone(k, i, self._out[i : i + 1])
+
+    def _run_alone(self, k: int, i: int, out: np.ndarray) -> None:
+        """Env ``i`` alone into ``out`` (1, substeps, nstate); where MuJoCo refuses to step it,
+        its state as it was (time not advanced: stalled) and the env noted as refused."""
+        try:
+            self._rollout(k, i, i + 1, out)
+        except mujoco.FatalError as exc:
+            del self._local.datas[k]  # its stack was left as the error found it: a new one
+            out[0] = self._state[i]
+            self._refused[i] = True
+            self._refusal = str(exc).splitlines()[0]
 
     def _step_batch(self, item: tuple[np.ndarray, Batch]) -> None:
         ids, batch = item
         batch.state[:, self._full_columns] = self._state[ids]
         batch.state[:, self._control_columns] = self._control[ids, 0]
-        batch.step(nstep=self.substeps)
+        try:
+            batch.step(nstep=self.substeps)
+        except SimulationError as exc:
+            # The others stepped; the ones MuJoCo refused kept their state (time not advanced).
+            self._refused[ids[exc.ids]] = True
+            self._refusal = batch.error(int(exc.ids[0])).splitlines()[0]
         self._state[ids] = batch.state[:, self._full_columns]
 
     def _advance(self) -> None:
@@ -190,7 +227,9 @@ class MujocoCPUBackend(SimBackend):
     ) -> None:
         self._write_control(slice(None), ctrl, mocap_pos, mocap_quat)
         time_before = self._state[:, 0].copy()
+        self._refused[:] = False
         self._advance()
+        self._refusals += int(self._refused.sum())
         # MuJoCo resets an environment whose accelerations go bad (and rollout stops stepping
         # it); both show as a clock that did not advance by the control period.
         advanced = self._state[:, 0] - time_before
@@ -247,6 +286,14 @@ class MujocoCPUBackend(SimBackend):
         finite = np.isfinite(self._state).all(axis=1)
         fast = (np.abs(self._state[:, self._qvel]) > MAX_SPEED).any(axis=1)
         return torch.from_numpy(~finite | fast | self._stalled).to(self.device)
+
+    def drain_warnings(self) -> list[str]:
+        if not self._refusals:
+            return []
+        count, self._refusals = self._refusals, 0
+        size = self.models[0].narena / 2**20
+        return [f"MuJoCo could not step {count} env step(s) ({self._refusal}); those envs were "
+                f"reset: raise [physics] memory_mb (now {size:.0f} MB per env's arena)"]
 
     def state_dict(self) -> dict:
         return {"state": self._state.copy(), "stalled": self._stalled.copy()}
