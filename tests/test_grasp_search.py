@@ -271,6 +271,23 @@ def test_a_field_added_at_its_neutral_default_keeps_the_cached_grasps(
     assert starts_key(run, grasps) != key  # the field counts once it is not neutral
 
 
+def test_the_arena_size_keeps_the_cached_grasps_and_starts(tmp_path: Path) -> None:
+    """``physics.memory_mb`` (the trainer's warning says to raise it) changes no simulated
+    result, so at any value it leaves the searched grasps' and the recorded starts' keys as
+    they were before the field existed (a bin run re-searched the 78 grasps without this)."""
+    cfg = load_env_config(data_dir=tmp_path)
+    before = searched.hand_and_physics(cfg)
+    del before["physics"]["memory_mb"]
+    roomy = load_env_config(data_dir=tmp_path, physics={"memory_mb": 64.0})
+    assert searched.hand_key(cfg) == searched.hand_key(roomy) == searched.key_of(before)
+    grasps: dict = {}
+    assert starts_key(load_train_config(None), grasps) == starts_key(
+        load_train_config(None, sets={"physics.memory_mb": 64.0}), grasps)
+    # a field that does change the physics still changes both
+    assert searched.hand_key(load_env_config(physics={"noslip_iterations": 2})) != \
+        searched.hand_key(cfg)
+
+
 def test_committed_searched_grasps_are_complete() -> None:
     """The package's searched grasps (``searched.json``) name their configuration and have
     every parameter and the lifts they were measured with; the family runs them."""

@@ -733,14 +733,23 @@ that default). Cache keys (searched grasps, recorded grasp starts) leave such a 
 it holds that value, so what was cached before the field existed is still found."""
 
 
+UNKEYED_FIELDS = frozenset({"env.physics.memory_mb"})
+"""Config fields that change no simulated result whatever their value (the arena's size only
+decides whether MuJoCo has room to compute a step at all): cache keys leave them out, so that
+raising one, as the trainer's warning says, keeps the cached grasps and grasp starts."""
+
+
 def without_neutral(values: dict[str, Any], prefix: str = "env") -> dict[str, Any]:
     """``values`` (a config section as nested dicts, named ``prefix``) less the
-    ``NEUTRAL_DEFAULTS`` fields that hold their neutral value (a copy; ``values`` is kept)."""
+    ``NEUTRAL_DEFAULTS`` fields that hold their neutral value and the ``UNKEYED_FIELDS``
+    (a copy; ``values`` is kept): what a cache key is made of."""
     out = {}
     for key, value in values.items():
         dotted = f"{prefix}.{key}"
         if isinstance(value, dict):
             out[key] = without_neutral(value, dotted)
+        elif dotted in UNKEYED_FIELDS:
+            continue
         elif dotted not in NEUTRAL_DEFAULTS or NEUTRAL_DEFAULTS[dotted] != value:
             out[key] = value
     return out
