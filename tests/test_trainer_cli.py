@@ -5,6 +5,7 @@ a run, on one-iteration runs. (Training itself: tests/test_ppo.py.)"""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import subprocess
 import sys
@@ -404,6 +405,31 @@ def test_bin_play_renders_episodes_of_the_target(
     assert code == 0, err
     assert out.startswith(f"{held[0]}: success ") and "/2, " in out and str(video) in out
     assert video.stat().st_size > 1000
+
+
+def test_bin_play_steps_only_as_many_envs_per_bin_as_its_episodes_need(bin_run: Path) -> None:
+    """``trainer play`` in a bin run gives each bin as many envs as the bins holding the
+    target need between them for its episodes (every env steps: with one per bin and episode,
+    a target in 5 of 64 bins ran 512 envs for 8 episodes)."""
+    from trainer.session import EvalSession
+
+    cfg = RunDir(bin_run).load_config()
+    cfg = dataclasses.replace(cfg, env=dataclasses.replace(
+        cfg.env, bin=dataclasses.replace(cfg.env.bin, layouts=3)))
+    session = EvalSession(cfg)
+    probe = session.bin_env(3)
+    names = probe.objects.names
+    holding = {n: int((probe.assignment.cpu() == k).any(1).sum()) for k, n in enumerate(names)}
+    probe.close()
+    name = max(holding, key=holding.get)  # in 2 or 3 of the 3 bins
+    assert holding[name] >= 2
+    env, ids, slots = session.play_env(name, 4, seed=0)
+    assert env.num_envs == 3 * -(-4 // holding[name])  # 6 (or 3): not 3 x 4
+    assert len(ids) == 4
+    assert (env.assignment.cpu()[ids] == names.index(name)).any(1).all()
+    assert (slots[ids] >= 0).all() and (slots[[i for i in range(env.num_envs)
+                                                 if i not in ids]] == -1).all()
+    env.close()
 
 
 def test_a_trainer_warning_is_one_line_and_others_keep_their_source() -> None:

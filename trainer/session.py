@@ -301,9 +301,10 @@ class EvalSession:
         """``trainer play --object NAME``'s env: (env, the envs that play NAME, the target
         slots (E,) long that make NAME their target for ``run(target_slots=...)``, -1
         elsewhere; None for a lift run). Lift: NAME alone in ``episodes`` envs, seeded
-        ``streams(seed)``. Bin: the run's bins (``bin_env``, each with ``episodes`` envs), the
-        envs (up to ``episodes``) whose bin holds NAME, episodes seeded ``seed``. A name outside
-        the run's object set, or in none of its bins, is a one-line error naming the fix."""
+        ``streams(seed)``. Bin: the run's bins (``bin_env``), each with as many envs as it
+        takes for the bins that hold NAME to have ``episodes`` envs between them, the envs (up
+        to ``episodes``) whose bin holds NAME, episodes seeded ``seed``. A name outside the
+        run's object set, or in none of its bins, is a one-line error naming the fix."""
         if self.cfg.env.task != "bin":
             return self.env(episodes, self.streams(seed), [name]), list(range(episodes)), None
         names = self.names()
@@ -312,18 +313,24 @@ class EvalSession:
                 f"--object {name}: not in the object set {self.cfg.env.objects!r} of this bin "
                 f"run: play one of its objects ({_listing(names)})"
             )
+        # One env per bin first, to count the bins that hold NAME: every env steps, and with
+        # ``episodes`` envs per bin a target in 5 of 64 bins ran 64 x 8 envs for 8 episodes
+        # (6.5 minutes of a core). The bins are the same for any number of envs per bin.
         count = min(self.cfg.env.bin.layouts, self.cfg.env.num_envs)
-        env = self.bin_env(count * episodes)
-        holds = env.assignment.cpu() == env.objects.names.index(name)  # (E, K)
-        ids = holds.any(1).nonzero()[:, 0][:episodes].tolist()
-        if not ids:
-            layouts, known = env.layouts.cpu(), env.objects.names
-            env.close()
+        probe = self.bin_env(count)
+        holding = int((probe.assignment.cpu() == probe.objects.names.index(name)).any(1).sum())
+        if not holding:
+            layouts, known = probe.layouts.cpu(), probe.objects.names
+            probe.close()
             held = sorted({known[k] for k in layouts.unique().tolist()})
             raise TrainerError(
                 f"--object {name}: none of the run's {len(layouts)} bins holds it (they hold "
                 f"{_listing(held)}): play one of those"
             )
+        probe.close()
+        env = self.bin_env(count * -(-episodes // holding))
+        holds = env.assignment.cpu() == env.objects.names.index(name)  # (E, K)
+        ids = holds.any(1).nonzero()[:, 0][:episodes].tolist()
         slots = torch.full((env.num_envs,), -1, dtype=torch.long)
         slots[ids] = holds[ids].long().argmax(1)
         env.set_seed(seed)
