@@ -391,3 +391,40 @@ def test_video_frames_stacks_the_frames_at_even_times(tmp_path: Path) -> None:
     with pytest.raises(SystemExit) as done:
         video_frames.main([str(video), "--frames", "2", "--width", "64", "--out", str(out)])
     assert done.value.code == 0 and Image.open(out).size == (64, 64)
+
+
+def _eval_folder(path: Path, rows: dict[str, tuple[int, int]]) -> Path:
+    """A trainer eval folder: per_object.csv and endings.csv (the failures all never lifted)."""
+    path.mkdir()
+    per_object = ["object,episodes,successes,success_rate,task,bin_objects,context,representation"]
+    endings = ["object,episodes,success,never_lifted,dropped,stalled,knocked_off"]
+    for name, (episodes, successes) in rows.items():
+        rate = f"{successes / episodes:.4f}" if episodes else ""
+        per_object.append(f"{name},{episodes},{successes},{rate},bin,5,none,bbox")
+        endings.append(f"{name},{episodes},{successes},{episodes - successes},0,0,0")
+    (path / "per_object.csv").write_text("\n".join(per_object) + "\n")
+    (path / "endings.csv").write_text("\n".join(endings) + "\n")
+    return path
+
+
+def test_paired_evals_compares_the_same_episodes_by_object(tmp_path: Path) -> None:
+    from click.testing import CliRunner
+
+    paired = script("scripts", "paired_evals")
+    base = _eval_folder(tmp_path / "base", {"a": (20, 10), "b": (20, 4), "c": (0, 0)})
+    other = _eval_folder(tmp_path / "other", {"a": (20, 14), "b": (20, 6), "c": (0, 0)})
+    done = CliRunner().invoke(paired.main, [str(base), str(other)])
+    assert done.exit_code == 0, done.output
+    lines = done.output.splitlines()
+    assert lines[0] == ("| evaluation | episodes | held | never lifted | dropped | stalled "
+                        "| knocked off |")
+    assert lines[2] == f"| {base} | 40 | 0.350 | 0.650 | 0.000 | 0.000 | 0.000 |"
+    assert lines[3] == f"| {other} | 40 | 0.500 | 0.500 | 0.000 | 0.000 | 0.000 |"
+    # differences +0.2 and +0.1 (c has no episodes): mean 0.15, standard error 0.05
+    assert lines[4] == (f"{other} over {base}: +0.150 ± 0.050 by object (2 objects: 2 up, "
+                        f"0 down): beyond two standard errors")
+    # Another number of episodes is not the same episodes: refused in one line.
+    fewer = _eval_folder(tmp_path / "fewer", {"a": (10, 5), "b": (20, 4)})
+    done = CliRunner().invoke(paired.main, [str(base), str(fewer)])
+    assert done.exit_code == 1 and "a: 20 episodes against 10: not the same episodes" in \
+        done.output
