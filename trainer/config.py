@@ -99,7 +99,7 @@ class PhysicsConfig(_Checked):
     MuJoCo Warp's step on a GPU (results/bench-gpu-step-2026-11-29/)."""
     memory_mb: float = bounded(0.0, ge=0)
     """MB of each env's MuJoCo arena (contacts, constraints, solver scratch: ``<size memory>``);
-    0: MuJoCo's estimate (16 MB for a bin of five YCB objects). An env whose constraints outgrow
+    0: MuJoCo's estimate (15 MB for a bin of five YCB objects). An env whose constraints outgrow
     it cannot be stepped (MuJoCo C: ``mj_stackAlloc: out of memory``): it is reset and the trainer
     says so once per iteration. Address space, resident only as used."""
     sleep: bool = False
