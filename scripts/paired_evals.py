@@ -20,7 +20,10 @@ from pathlib import Path
 
 import click
 
-ENDINGS = ("success", "never_lifted", "dropped", "stalled", "knocked_off")
+from trainer.evaluation import ENDINGS as ENDING_NAMES
+
+ENDINGS = tuple(name.replace(" ", "_") for name in ENDING_NAMES)
+"""endings.csv's columns, as ``trainer eval`` writes them."""
 
 
 def read_eval(folder: Path) -> tuple[dict[str, tuple[int, int]], dict[str, int]]:

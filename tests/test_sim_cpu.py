@@ -64,11 +64,12 @@ def test_a_state_mujoco_cannot_step_is_left_stalled_and_counted(sleep: bool) -> 
 def test_the_arena_that_holds_the_pile_steps_it_as_one_run_of_every_env() -> None:
     # With room for the pile, every env steps; the envs refused above step as they would alone.
     sim = backend("4M", sleep=False)
+    start = sim.state_dict()["state"][1]
     sim.step(torch.zeros(4, 0))
     assert not sim.unstable().any() and sim.drain_warnings() == []
     alone = pile_model("4M")
     data = mujoco.MjData(alone)
-    mujoco.mj_setState(alone, data, backend("4M", sleep=False).state_dict()["state"][1], FULL)
+    mujoco.mj_setState(alone, data, start, FULL)
     for _ in range(5):
         mujoco.mj_step(alone, data)
     np.testing.assert_array_equal(sim.state_dict()["state"][1, 1: 1 + alone.nq], data.qpos)
