@@ -2,6 +2,7 @@
 
 Neither package imports the other's internals for these: ``rotations`` (the one rotation module,
 torch), ``files`` (atomic writes), ``config_schema`` (checked config dataclasses from TOML),
-``cli`` (one-line errors on the command line) and ``errors`` (the base of both packages' user
-errors). The trainer reaches geomprep's output only through ``geomprep.contract``.
+``cli`` (one-line errors on the command line), ``machine`` (the machine in words) and
+``errors`` (the base of both packages' user errors). The trainer reaches geomprep's output only
+through ``geomprep.contract``.
 """

@@ -19,6 +19,7 @@ from torchrl.collectors import Collector
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.objectives import ClipPPOLoss
 
+from geomgrasp.machine import cpu_model
 from geomprep.config import Config
 from trainer.cli import cli
 from trainer.cli import main as trainer_main
@@ -32,6 +33,7 @@ from trainer.tasks import make_env, observation_spec
 from trainer.training.checkpoint import agent_part, copy_agent_parts, load_agent
 from trainer.training.curriculum import LiftCurriculum
 from trainer.training.outcomes import ObjectOutcomes
+from trainer.training.run_dir import read_machines
 from trainer.training.stop import StopSignals
 
 OBJECTS = "builtin_cylinder,builtin_sphere"
@@ -225,6 +227,43 @@ def test_shared_encoder_runs_once_per_minibatch_and_learns_from_both_losses() ->
     assert agent.policy_net.loc.weight.grad is None  # the critic's loss does not reach the policy
 
 
+@pytest.mark.parametrize(("representation", "shared"), [("bbox", False), ("pc32", True)])
+def test_rollout_values_are_gaes_and_run_each_observation_once(
+    builtin_data: Config, representation: str, shared: bool
+) -> None:
+    """``rollout_values`` writes the values TorchRL's GAE with the value network computes (float
+    rounding apart: other batch shapes), but runs the network on the next observations only
+    where an episode ended and at the rollout's last step; with the shared encoder, the
+    rollout's observations are not encoded again (the policy encoded them as it collected)."""
+    from torchrl.objectives.value import GAE
+
+    from trainer.ppo import rollout_values
+
+    cfg = tiny_config(builtin_data.data_dir, representation=representation)
+    cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, max_steps=6),
+                              ppo=dataclasses.replace(cfg.ppo, shared_encoder=shared))
+    env = make_env(cfg.env, seed=0)
+    agent = Agent(env.observation_spec, cfg.ppo)
+    data = next(iter(Collector(env, agent.actor, frames_per_batch=4 * 16, total_frames=-1,
+                               auto_register_policy_transforms=False)))
+    ended = data["next", "done"].squeeze(-1)
+    assert ended[:, :-1].any()  # episodes of 6 steps end inside a rollout of 16
+    expected = data.clone()
+    with torch.no_grad():
+        GAE(gamma=0.99, lmbda=0.95, value_network=agent.critic_denorm)(expected)
+    encoded: list[int] = []
+    agent.value_net.encoder.register_forward_hook(
+        lambda _module, inputs, _out: encoded.append(math.prod(inputs[0].shape[:-1])))
+    rollout_values(agent, data)
+    with torch.no_grad():
+        GAE(gamma=0.99, lmbda=0.95, value_network=None)(data)
+    for key in ("state_value", ("next", "state_value"), "advantage", "value_target"):
+        torch.testing.assert_close(data[key], expected[key], rtol=1e-5, atol=1e-5)
+    runs_of_next = int(ended[:, :-1].sum()) + 4
+    assert sum(encoded) == (runs_of_next if shared else 4 * 16 + runs_of_next)
+    env.close()
+
+
 def test_loss_sees_updated_normalizers(builtin_data: Config) -> None:
     """The collected log-probs and the loss's log-probs come from the same policy even after the
     observation statistics move (the loss module holds references to the buffers)."""
@@ -338,6 +377,11 @@ def test_resume_continues_bit_for_bit(
     assert [r["object_success_rate"] for r in rows] == [
         r["object_success_rate"] for r in straight_rows
     ]
+    # each launch recorded its machine from the iteration it trained first (the killed one's
+    # iteration 3 was redone by the resume)
+    launches = read_machines(killed)
+    assert [int(r["first_iteration"]) for r in launches] == [1, 3]
+    assert launches[1]["cpu"] == cpu_model() and launches[1]["processes"] == "1"
 
 
 def test_object_success_rate_weighs_objects_equally() -> None:

@@ -14,6 +14,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import torch
+from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 from torchrl.data import Composite
@@ -323,6 +324,7 @@ class Agent(nn.Module):
         self.value_norm = RunningNorm((1,), clip=1e6)
         self.policy_net = PolicyNet(shapes, self.obs_norm, cfg)
         shared = self.policy_net.encoder if cfg.shared_encoder else None
+        self.shared_encoder = cfg.shared_encoder
         self.value_net = ValueNet(shapes, self.obs_norm, cfg, encoder=shared)
         keys = self.obs_keys
         if shared is None:
@@ -346,6 +348,16 @@ class Agent(nn.Module):
             policy, in_keys=["loc", "scale"], distribution_class=IndependentNormal,
             return_log_prob=True,
         )
+
+    @torch.no_grad()
+    def state_values(self, data: TensorDictBase) -> torch.Tensor:
+        """State values in reward units (*B, 1) of ``data``'s observations (batch shape B). With
+        ``[ppo] shared_encoder``, ``data``'s encoded observations (``ENCODED``) where it holds
+        them: the policy wrote them as it collected, with these weights and normalizer
+        statistics, so the value head reads them instead of encoding every point again."""
+        if self.shared_encoder and self.ENCODED in data.keys():  # noqa: SIM118 (a TensorDict)
+            return self.value_norm.denormalize(self.value_net.head(data[self.ENCODED]))
+        return self.critic_denorm(data.select(*self.obs_keys))["state_value"]
 
     @torch.no_grad()
     def silence_unseen_features(self) -> int:

@@ -19,6 +19,7 @@ import functools
 import math
 import time
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +30,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 from tqdm import tqdm
 
+from geomgrasp.machine import cpu_model, niceness, usable_cores
 from trainer.config import AGENT_PARTS, PPOConfig, TrainConfig, check_device
 from trainer.errors import TrainerError
 from trainer.models import Agent
@@ -54,7 +56,7 @@ from trainer.training.grasp_starts import (
 )
 from trainer.training.outcomes import EndedEpisodes, EpisodeStats
 from trainer.training.progress import NoLog, ProgressLog, RunClock
-from trainer.training.run_dir import RunDir
+from trainer.training.run_dir import RunDir, record_machine
 from trainer.training.stop import StopSignals
 
 LOSS_KEYS = ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx", "clip_fraction")  # noqa: E501
@@ -374,7 +376,27 @@ def build_parts(
         if cfg.ppo.stagger_episodes:
             env.stagger_next_reset()  # (a resumed run's envs continue where they stood)
     env.set_lift_target(state.curriculum.targets())
+    if world.is_main:
+        record_machine(run, launch_machine(state.iteration + 1, env.device, world.size,
+                                           env_cfg.nthread, cfg.run.torch_threads))
     return RunParts(env, agent, update, state, notes)
+
+
+def launch_machine(
+    first_iteration: int, device: torch.device, processes: int, sim_threads: int,
+    torch_threads: int,
+) -> dict[str, Any]:
+    """The row of ``machines.csv`` (``trainer.training.run_dir.MACHINE_COLUMNS``) for a launch
+    that trains from ``first_iteration`` on this machine: a run's minutes and env steps per
+    second compare only with other runs' on the same machine, and a run resumed across
+    sessions may change machines."""
+    name = torch.cuda.get_device_name(device) if device.type == "cuda" else str(device)
+    return {
+        "first_iteration": first_iteration,
+        "started": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "cpu": cpu_model(), "cores": usable_cores(), "nice": niceness(), "device": name,
+        "processes": processes, "sim_threads": sim_threads, "torch_threads": torch_threads,
+    }
 
 
 def shared_grasp_starts(
@@ -544,7 +566,8 @@ class PPOUpdate:
         cls, agent: Agent, ppo: PPOConfig, minibatch: int, distributed: bool = False
     ) -> PPOUpdate:
         optimizer = torch.optim.Adam(agent.parameters(), lr=ppo.lr)
-        advantage = GAE(gamma=ppo.gamma, lmbda=ppo.lmbda, value_network=agent.critic_denorm)
+        # (no value network: ``rollout_values`` writes the values GAE reads)
+        advantage = GAE(gamma=ppo.gamma, lmbda=ppo.lmbda, value_network=None)
         loss = ClipPPOLoss(
             agent.actor, agent.critic, clip_epsilon=ppo.clip_epsilon,
             entropy_bonus=True, entropy_coeff=ppo.entropy_coef,
@@ -563,6 +586,7 @@ class PPOUpdate:
         pool = distributed.pool_moments if self.distributed else None
         # Advantages with values in reward units; the critic learns the normalized targets.
         with torch.no_grad():
+            rollout_values(agent, data)
             self.advantage(data)
         agent.value_norm.update(data["value_target"], pool)
         data["value_target"] = agent.value_norm(data["value_target"])
@@ -612,6 +636,25 @@ class PPOUpdate:
         torch.nn.utils.clip_grad_norm_(agent.parameters(), self.ppo.max_grad_norm)
         self.optimizer.step()
         return out
+
+
+def rollout_values(agent: Agent, data: TensorDictBase) -> None:
+    """Write ``state_value`` and ``("next", "state_value")`` (reward units, (E, T, 1)) into
+    ``data``, a rollout of E envs by T steps, running the value network once per observation.
+
+    Where a step did not end its episode, its next observation is the following step's
+    observation (the collector carries it over, equal to the bit), so its next value is that
+    step's value; the next observations are run only where an episode ended and at the last
+    step. (TorchRL's GAE with a value network runs every next observation again: a third of
+    the rollout's network work, most of it for point clouds.)"""
+    values = agent.state_values(data)
+    following = torch.empty_like(values)
+    following[:, :-1] = values[:, 1:]
+    ran = data["next", "done"].reshape(values.shape[:2]).clone()
+    ran[:, -1] = True
+    following[ran] = agent.state_values(data["next"][ran].select(*agent.obs_keys))
+    data["state_value"] = values
+    data["next", "state_value"] = following
 
 
 def _adapt_lr(optimizer: torch.optim.Optimizer, kl: float, ppo: PPOConfig) -> None:

@@ -7,6 +7,7 @@ A run directory is read as the trainer writes it::
     RUN_DIR/metrics.csv            one row per PPO iteration: env_steps, wall_time_s,
                                    object_success_rate (the mean over objects; success_rate, over
                                    all ended episodes, in runs logged before it existed)
+    RUN_DIR/machines.csv           optional: the machine of each launch (start or resume)
     RUN_DIR/eval/per_object.csv    optional (``trainer eval``): object, episodes, successes;
                                    ``eval`` or another folder of ``trainer eval --out`` (the
                                    report's ``eval_dir``), with the success criterion in table.md
@@ -37,6 +38,7 @@ import csv
 import json
 import math
 import os
+import re
 import shlex
 from collections import Counter
 from collections.abc import Iterable, Sequence
@@ -49,7 +51,7 @@ import numpy as np
 from geomgrasp.files import atomic_path
 from trainer.config import ABSENT_MEANS
 from trainer.errors import TrainerError
-from trainer.training.run_dir import RunDir
+from trainer.training.run_dir import RunDir, read_machines
 
 GroupKey = tuple[str, str, str, str]
 """(task, representation, reward kind, robot kind): task ``lift`` or ``binN``, representation
@@ -178,6 +180,9 @@ class Run:
     eval_criterion: str | None = None
     """The success criterion of the evaluation (its table.md's ``Success:`` line without the
     prefix, e.g. "the target lifted by 0.2 m ..."), if stated."""
+    machines: tuple[tuple[int, str], ...] = ()
+    """(first iteration, the machine in words) per launch, from ``machines.csv``; empty for a
+    run trained before the file existed."""
 
     @property
     def has_curriculum(self) -> bool:
@@ -246,7 +251,46 @@ def load_run(path: str | Path, eval_dir: str = "eval") -> Run:
         settings=config["settings"],
         eval_criterion=_read_criterion(path / eval_dir / "table.md") if per_object else None,
         endings=_read_endings(path / eval_dir / "endings.csv") if per_object else None,
+        machines=tuple((int(r["first_iteration"]), _machine_words(r)) for r in read_machines(run)),
     )
+
+
+def _machine_words(row: dict[str, str]) -> str:
+    """A ``machines.csv`` row in words, e.g. ``AMD EPYC, 2 cores, nice 5``."""
+    words = [row["cpu"], f"{row['cores']} cores"]
+    if row["nice"] not in ("", "0"):
+        words.append(f"nice {row['nice']}")
+    if row["device"] != "cpu":
+        words.append(row["device"])
+    if row["processes"] not in ("", "1"):
+        words.append(f"{row['processes']} processes")
+    return ", ".join(words)
+
+
+def machines_text(runs: Sequence[Run], out_dir: Path) -> list[str]:
+    """Per run, the machines that trained which of its iterations (``machines.csv``), and
+    whether the arms' minutes and env steps/s compare: only where one machine trained them all."""
+    lines, seen = [], set()
+    for r in runs:
+        last = len(r.env_steps)
+        spans = []
+        if not r.machines or r.machines[0][0] > 1:
+            end = r.machines[0][0] - 1 if r.machines else last
+            spans.append(f"iterations 1-{end}: not recorded")
+            seen.add(None)
+        for k, (first, words) in enumerate(r.machines):
+            end = r.machines[k + 1][0] - 1 if k + 1 < len(r.machines) else last
+            if first <= end:
+                spans.append(f"iterations {first}-{end}: {words}")
+            seen.add(re.sub(r", nice -?[0-9]+", "", words))  # (the same machine, niced or not)
+        lines.append(f"- `{_relative_to(r.path, out_dir)}`: " + "; ".join(spans))
+    if seen == {next(iter(seen))} and None not in seen:
+        verdict = "One machine trained every run: minutes and env steps/s compare across arms."
+    else:
+        verdict = ("**Minutes and env steps/s compare only between runs on one machine**, and "
+                   "these runs were trained on more than one or on machines not recorded "
+                   "(`machines.csv` exists since 2026-11-30): compare the arms by env steps.")
+    return [verdict, "", *lines, ""]
 
 
 def _read_endings(path: Path) -> dict[str, dict[str, int]] | None:
@@ -1220,6 +1264,7 @@ def write_report(
         "at 90 % and 95 % only).",
         "",
     ]
+    parts += ["## Machines", "", *machines_text(runs, out_dir)]
     parts += [
         "## Learning curves",
         "",
