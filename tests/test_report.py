@@ -542,6 +542,22 @@ def test_runs_that_differ_in_more_than_the_seed_are_not_averaged(tmp_path: Path)
     assert len(report.group_runs(runs[:2])) == 1
 
 
+def test_an_arm_that_ran_with_other_settings_than_most_is_named(
+    run_dirs: list[Path], tmp_path: Path
+) -> None:
+    """One pc128 run with another learning rate than the five others: alone in its group, it is
+    named by the difference; the others are not; the group key's own fields (here the
+    representation) never are; a tie names both sides."""
+    odd = _write_run(tmp_path / "runs", "pc128", 0, 30, [0.1, 0.5], None)
+    config = json.loads((odd / "config.json").read_text())
+    config["ppo"]["lr"] = 1e-3
+    (odd / "config.json").write_text(json.dumps(config))
+    runs = [report.load_run(d) for d in [*run_dirs, odd]]
+    assert [k[1] for k in report.group_runs(runs)] == ["com", "sq", "pc128 [lr=0.001]"]
+    pair = [report.load_run(run_dirs[0]), runs[-1]]
+    assert [k[1] for k in report.group_runs(pair)] == ["sq [lr=0.0003]", "pc128 [lr=0.001]"]
+
+
 def test_runs_from_before_the_held_criterion_are_not_averaged_with_later_ones(
     tmp_path: Path,
 ) -> None:

@@ -19,7 +19,9 @@ representation. Run directories written before the tasks existed (no ``env.task`
 runs. Runs of one such group whose configs differ in anything else (physics, PPO settings, the
 budget; not in the seed or in ``NOT_THE_EXPERIMENT``, and only in fields every one of them
 records, or that ``config.ABSENT_MEANS`` fills in) are split further, and the representation names
-the difference, e.g. ``bbox [noslip_iterations=5]``. The runs of a group are then taken to
+the difference, e.g. ``bbox [noslip_iterations=5]``; so is a group whose runs differ from most
+of the report's runs in such a field, even alone (``pc128 [pointnet_hidden=[16, 32, 64]]`` among
+arms of the default encoder). The runs of a group are then taken to
 differ by seed, and every table cell is a mean ± std (ddof = 0) over them. Units: env steps are
 counted over all parallel environments, wall time is seconds in the data and minutes in tables
 and plots, success rates are fractions in [0, 1].
@@ -551,20 +553,50 @@ def final_success(run: Run, last_fraction: float = 0.1) -> float:
 # ------------------------------------------------------------------------------------- grouping
 
 
+GROUP_FIELDS = frozenset({
+    "env.task", "env.representation", "env.context", "env.bin.num_objects", "env.reward.kind",
+    "env.robot.kind",
+})
+"""The config fields of the group key (``Run.group``): how arms differ by design."""
+
+
+def _uncommon_settings(runs: Sequence[Run]) -> dict[int, set[str]]:
+    """Per run (by id), the settings outside ``GROUP_FIELDS`` in which it differs from most of
+    ``runs`` (the value most of them have; on a tie, every run's): an arm that ran with another
+    network than the others (the authors' point-cloud encoder, say) is named so even alone."""
+    out: dict[int, set[str]] = {id(r): set() for r in runs}
+    fields = set().union(*(set(r.settings) for r in runs)) - GROUP_FIELDS
+    for k in fields:
+        having = [r for r in runs if k in r.settings]  # (a run may predate the field)
+        counts = Counter(r.settings[k] for r in having)
+        if len(counts) < 2:
+            continue
+        (_, top), *rest = counts.most_common()
+        tied = rest[0][1] == top
+        for r in having:
+            if tied or counts[r.settings[k]] < top:
+                out[id(r)].add(k)
+    return out
+
+
 def group_runs(runs: Iterable[Run]) -> dict[GroupKey, list[Run]]:
     """Runs by group key, groups in the paper's order (``arm_order``), runs within a group by
     seed. Runs of one ``Run.group`` whose settings differ are split: their representation gains
-    `` [name=value, ...]`` for every setting that differs (see the module docstring)."""
+    `` [name=value, ...]`` for every setting that differs (see the module docstring), and for
+    every setting in which a run differs from most of the runs (``_uncommon_settings``)."""
+    runs = list(runs)
+    uncommon = _uncommon_settings(runs)
     by_group: dict[GroupKey, list[Run]] = {}
     for run in runs:
         by_group.setdefault(run.group, []).append(run)
     groups: dict[GroupKey, list[Run]] = {}
     for key, members in by_group.items():
         shared = set.intersection(*(set(r.settings) for r in members))
-        differ = sorted(k for k in shared if len({r.settings[k] for r in members}) > 1)
+        differ = {k for k in shared if len({r.settings[k] for r in members}) > 1}
         for run in members:
             variant = ", ".join(
-                f"{k.rsplit('.', 1)[-1]}={json.loads(run.settings[k])}" for k in differ
+                f"{k.rsplit('.', 1)[-1]}={json.loads(run.settings[k])}"
+                for k in sorted(differ | (uncommon[id(run)] & shared))
             )
             split = (key[0], f"{key[1]} [{variant}]", *key[2:]) if variant else key
             groups.setdefault(split, []).append(run)
