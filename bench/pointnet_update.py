@@ -7,7 +7,9 @@ plain one, same run.
 For each point-cloud representation, one minibatch of the run's size (``trainer.ppo``'s rule:
 1,024 frames at 256 envs) of random observations: PPO's clipped loss (TorchRL's
 ``ClipPPOLoss``, as the update calls it) and its backward (``update``); the policy and the
-value without autograd (``no-grad``: collection and GAE). Three variants:
+value without autograd (``no-grad``: collection and GAE's values, as ``trainer.ppo`` runs them
+since 2026-11-30: with the shared encoder the value reads the policy's encoding). Three
+variants:
 
 - ``plain``: the per-point MLP over every point in one pass, then ``max(dim=-2)``;
 - ``fast``: ``trainer.models.max_pooled_points`` (chunks that stay in cache; with more points
@@ -71,8 +73,8 @@ def measure(agent: Agent, proprio: torch.Tensor, cloud: torch.Tensor, repeats: i
         (out["loss_objective"] + out["loss_critic"]).backward()
 
     def no_grad() -> None:
-        with torch.no_grad():
-            agent.critic_denorm(agent.actor(data.clone()))
+        with torch.no_grad():  # (as the rollout: the policy as it collects, then GAE's values)
+            agent.state_values(agent.actor(data.select(*agent.obs_keys)))
 
     return median_ms(update, repeats), median_ms(no_grad, repeats)
 
@@ -104,9 +106,9 @@ def main(argv: list[str] | None = None) -> None:
             frames = iteration_frames(cfg)
             updates = cfg.ppo.epochs * -(-frames // batch)
             # A no-grad pass runs both networks on a minibatch: collection runs the policy on
-            # the rollout (half a pass per minibatch), GAE the value on the rollout and on its
-            # next observations (two halves).
-            no_grad_passes = 1.5 * frames / batch
+            # the rollout, GAE the value on it (``trainer.ppo.rollout_values``: its next
+            # observations only where an episode ended, a few percent, left out here).
+            no_grad_passes = frames / batch
             proprio = torch.randn(batch, spec["proprio"].shape[-1])
             cloud = torch.randn(batch, *spec["object"].shape[1:])
             saved = models.max_pooled_points
