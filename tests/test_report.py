@@ -542,6 +542,31 @@ def test_runs_that_differ_in_more_than_the_seed_are_not_averaged(tmp_path: Path)
     assert len(report.group_runs(runs[:2])) == 1
 
 
+def test_objects_that_fail_upside_down_get_their_face_up_rates(
+    run_dirs: list[Path], tmp_path: Path
+) -> None:
+    """by_start.csv of the evaluations: the plate, never lifted upside down, is listed with each
+    arm's rate over all resets and over the face-up ones (mean over seeds); the cube, lifted
+    either way, is not; runs without the file are left out of it."""
+    rows = {"sq_s0": {"plate": (7, 5, 3, 0), "cube": (6, 6, 4, 4)},
+            "sq_s1": {"plate": (7, 3, 3, 0), "cube": (6, 5, 4, 4)},
+            "com_s0": {"plate": (4, 1, 1, 0), "cube": (5, 5, 5, 5)}}
+    for path in run_dirs:
+        if path.name in rows:
+            lines = ["object,face_up_episodes,face_up_successes,upside_down_episodes,"
+                     "upside_down_successes"]
+            lines += [f"{k},{','.join(map(str, v))}" for k, v in rows[path.name].items()]
+            (path / "eval" / "by_start.csv").write_text("\n".join(lines) + "\n")
+    runs = [report.load_run(d) for d in run_dirs]
+    table = report.upside_down_table(runs).splitlines()
+    assert table[0] == "| object | com | sq |" and len(table) == 3
+    assert table[2] == "| plate | 0.20 / 0.25 (80% face up) | 0.40 / 0.57 (70% face up) |"
+    out = tmp_path / "report"
+    report.write_report(run_dirs, out)
+    assert "### Objects that fail upside down" in (out / "report.md").read_text()
+    assert report.upside_down_table([replace(r, by_start=None) for r in runs]) == ""
+
+
 def test_an_arm_that_ran_with_other_settings_than_most_is_named(
     run_dirs: list[Path], tmp_path: Path
 ) -> None:

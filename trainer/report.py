@@ -182,6 +182,10 @@ class Run:
     eval_criterion: str | None = None
     """The success criterion of the evaluation (its table.md's ``Success:`` line without the
     prefix, e.g. "the target lifted by 0.2 m ..."), if stated."""
+    by_start: dict[str, tuple[int, int, int, int]] | None = None
+    """Per object, (face-up episodes, their successes, upside-down episodes, their successes)
+    from ``trainer eval``'s ``by_start.csv`` (how the target rested after the first action);
+    None where the evaluation did not record it."""
     machines: tuple[tuple[int, str], ...] = ()
     """(first iteration, the machine in words) per launch, from ``machines.csv``; empty for a
     run trained before the file existed."""
@@ -253,6 +257,7 @@ def load_run(path: str | Path, eval_dir: str = "eval") -> Run:
         settings=config["settings"],
         eval_criterion=_read_criterion(path / eval_dir / "table.md") if per_object else None,
         endings=_read_endings(path / eval_dir / "endings.csv") if per_object else None,
+        by_start=_read_by_start(path / eval_dir / "by_start.csv") if per_object else None,
         machines=tuple((int(r["first_iteration"]), _machine_words(r)) for r in read_machines(run)),
     )
 
@@ -314,6 +319,59 @@ def _read_endings(path: Path) -> dict[str, dict[str, int]] | None:
         return out
     except (OSError, UnicodeDecodeError, csv.Error, KeyError, TypeError, ValueError):
         return None
+
+
+def _read_by_start(path: Path) -> dict[str, tuple[int, int, int, int]] | None:
+    """``by_start.csv`` (object, face-up episodes and successes, upside-down ones); None if
+    absent or unreadable (the table that reads it is left out rather than the report)."""
+    columns = ("face_up_episodes", "face_up_successes", "upside_down_episodes",
+               "upside_down_successes")
+    if not path.is_file():
+        return None
+    try:
+        with path.open(newline="") as f:
+            return {row["object"]: tuple(int(row[c]) for c in columns)  # type: ignore[misc]
+                    for row in csv.DictReader(f)}
+    except (OSError, UnicodeDecodeError, csv.Error, KeyError, TypeError, ValueError):
+        return None
+
+
+def upside_down_table(runs: Sequence[Run]) -> str:
+    """The objects that fail when they start upside down (the plate: a dome no grasp of this
+    hand lifts): those whose upside-down episodes, pooled over every evaluated run, succeed at
+    less than half the rate of their face-up ones. One row per such object, one column per arm
+    with the record: its success over all resets and over the face-up ones (mean over seeds),
+    and the face-up share of the episodes. Empty where no object qualifies."""
+    recorded = [r for r in runs if r.by_start]
+    pooled: dict[str, list[int]] = {}
+    for r in recorded:
+        for name, counts in r.by_start.items():  # type: ignore[union-attr]
+            pooled[name] = [a + b for a, b in zip(pooled.get(name, [0] * 4), counts, strict=True)]
+    failing = sorted(
+        name for name, (up, up_held, down, down_held) in pooled.items()
+        if up and down and up_held and down_held / down < 0.5 * up_held / up
+    )
+    if not failing:
+        return ""
+    labels = group_labels(runs)
+    groups = {k: [r for r in m if r.by_start] for k, m in group_runs(runs).items()}
+    groups = {k: m for k, m in groups.items() if m}
+    lines = ["| object | " + " | ".join(labels[k] for k in groups) + " |",
+             "|---|" + "---:|" * len(groups)]
+    for name in failing:
+        cells = [name]
+        for members in groups.values():
+            rows = [r.by_start[name] for r in members if name in r.by_start]  # type: ignore[index]
+            if not rows:
+                cells.append(_DASH)
+                continue
+            every = np.mean([(b + d) / max(1, a + c) for a, b, c, d in rows])
+            up = [b / a for a, b, _, _ in rows if a]
+            share = sum(a for a, _, _, _ in rows) / max(1, sum(a + c for a, _, c, _ in rows))
+            face_up = f"{np.mean(up):.2f}" if up else _DASH
+            cells.append(f"{every:.2f} / {face_up} ({share:.0%} face up)")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def _check_eval_dir(eval_dir: str) -> None:
@@ -1261,6 +1319,16 @@ def write_report(
     parts += [f"## Table I: success per object (`trainer eval`, folder `{eval_dir}`)", ""]
     if evaluated:
         parts += [per_object_table(runs), *_table_one_notes(runs, eval_dir, labels)]
+        upside_down = upside_down_table(runs)
+        if upside_down:
+            parts += [
+                "### Objects that fail upside down", "",
+                "Where an object's episodes that started upside down (its mesh's up axis "
+                "pointing down after the first action: `trainer eval`'s `by_start.csv`) "
+                "succeed at less than half the rate of its face-up ones, pooled over the "
+                "evaluated runs: per arm its success over all resets / over the face-up ones "
+                "(mean over seeds), and the face-up share of its episodes.", "", upside_down,
+            ]
         parts += ["## Ranking against the paper", "", ranking_text(paper_ranking(runs)), ""]
         worst = worst_objects_table(runs, worst_count)
         if worst:
