@@ -6,8 +6,9 @@ scripts/start_noise.py (how much exploration noise grasp starts survive),
 scripts/episode_outcomes.py (how each evaluation episode ends), scripts/metrics_blocks.py (a
 training curve in blocks of env steps), scripts/eval_upright.py (an evaluation split by how
 the targets start), scripts/grasp_offset.py (where a policy holds each object) and
-scripts/bin_diagnosis.py (each target's best scripted grasp in clutter, and why it fails) and
-scripts/video_frames.py (a video's contact sheet)."""
+scripts/bin_diagnosis.py (each target's best scripted grasp in clutter, and why it fails),
+scripts/video_frames.py (a video's contact sheet), scripts/paired_evals.py (two evaluations
+of the same episodes compared) and scripts/run_status.py (where each run stands)."""
 
 from __future__ import annotations
 
@@ -428,3 +429,30 @@ def test_paired_evals_compares_the_same_episodes_by_object(tmp_path: Path) -> No
     done = CliRunner().invoke(paired.main, [str(base), str(fewer)])
     assert done.exit_code == 1 and "a: 20 episodes against 10: not the same episodes" in \
         done.output
+
+
+def test_run_status_tables_each_run_where_it_stands(tmp_path: Path, capsys) -> None:  # noqa: ANN001
+    """scripts/run_status.py: one row per run in the report's arm order and names, its env steps
+    of its budget, minutes, machines and evaluated held rate; a missing run is one line."""
+    import json
+
+    from tests.test_report import _write_run
+    from trainer.training.run_dir import record_machine
+
+    status = script("scripts", "run_status")
+    sq = _write_run(tmp_path, "sq", 0, 60, [0.1, 0.5], {"cube": (10, 7)})
+    com = _write_run(tmp_path, "com", 1, 30, [0.1, 0.2, 0.3], None)
+    config = json.loads((com / "config.json").read_text())
+    config["ppo"]["lr"] = 1e-3
+    (com / "config.json").write_text(json.dumps(config))
+    record_machine(RunDir(com), {"first_iteration": 2, "started": "2026-11-30T05:00:00Z",
+                                 "cpu": "AMD EPYC", "cores": 2, "nice": 5, "device": "cpu",
+                                 "processes": 1, "sim_threads": 1, "torch_threads": 1})
+    status.main([str(sq), str(com)])
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "| arm | seed | env steps (M) | minutes | machines | held (eval) |"
+    assert lines[2] == ("| com [lr=0.001] | 1 | 0.30 of 1.00 | 2 | not recorded; AMD EPYC, "
+                        "2 cores, nice 5 | — |")
+    assert lines[3] == "| sq [lr=0.0003] | 0 | 0.20 of 1.00 | 2 | not recorded | **0.700** |"
+    with pytest.raises(SystemExit, match="run_status: .*none"):
+        status.main([str(tmp_path / "none")])
