@@ -8,7 +8,7 @@
 # The run lives in runs/NAME and is kept in RESULTS_DIR/runs/NAME: it continues from there (or
 # starts from CONFIG with the extra `trainer run` arguments), trains until its training time in
 # all reaches MINUTES (`trainer run --minutes`), then copies back what the next chunk needs
-# (config.json, metrics.csv, machines.csv, grasp_starts.pt, checkpoints/last.pt) and evaluates the chunk:
+# (config.json, metrics.csv, launches.csv, grasp_starts.pt, checkpoints/last.pt) and evaluates the chunk:
 # CHUNK_EPISODES (20; 0: none) episodes per object into eval-<env steps>M/. Once the run has
 # trained BUDGET_MINUTES (or reached its total_steps) it is evaluated, once, with FINAL_EPISODES (50) per
 # object into eval/ (what `trainer report` reads), and a bin run also on bins of BIN_EVAL (10)
@@ -46,7 +46,7 @@ fi
 [ -f "$RUN/checkpoints/last.pt" ] || { echo "== $NAME: no checkpoint written" >&2; exit 1; }
 mkdir -p "$SAVED/checkpoints"
 cp "$RUN/config.json" "$RUN/metrics.csv" "$SAVED/"
-[ -f "$RUN/machines.csv" ] && cp "$RUN/machines.csv" "$SAVED/"
+[ -f "$RUN/launches.csv" ] && cp "$RUN/launches.csv" "$SAVED/"
 [ -f "$RUN/grasp_starts.pt" ] && cp "$RUN/grasp_starts.pt" "$SAVED/"
 cp "$RUN/checkpoints/last.pt" "$SAVED/checkpoints/last.pt"
 # where the run stands: env steps (M, one decimal), at the budget or not, its task

@@ -14,7 +14,7 @@
 #   bash scripts/gpu-campaign.sh run               unpack every part, train the campaign's next
 #                                                  chunk, evaluate it, put the files in $OUT:
 #                                                  last.pt, chunk.tar (metrics.csv, config.json,
-#                                                  machines.csv, chunk.json, eval.json), chunk.log and the
+#                                                  launches.csv, chunk.json, eval.json), chunk.log and the
 #                                                  kernel cache (kcache.tar.xz.0, .1, ...)
 #
 # A chunk trains until GPU_CAMPAIGN_DEADLINE seconds (default 560) after this command started,
@@ -180,7 +180,7 @@ fi
 log "training ended (status $status)"
 [ -f "$RUN/checkpoints/last.pt" ] || { log "no checkpoint: nothing to bring back"; exit 1; }
 cp "$RUN/checkpoints/last.pt" "$RUN/metrics.csv" "$RUN/config.json" "$OUT/"
-[ -f "$RUN/machines.csv" ] && cp "$RUN/machines.csv" "$OUT/"
+[ -f "$RUN/launches.csv" ] && cp "$RUN/launches.csv" "$OUT/"
 
 # The deterministic policy on every object, within what is left of the deadline.
 left=$(( DEADLINE - ($(date +%s) - start) - 10 ))
@@ -215,7 +215,7 @@ EOF
 # A call returns at most 8 files: the small ones travel as one tar beside last.pt and the log.
 small=(metrics.csv config.json chunk.json)
 [ -f "$OUT/eval.json" ] && small+=(eval.json)
-[ -f "$OUT/machines.csv" ] && small+=(machines.csv)
+[ -f "$OUT/launches.csv" ] && small+=(launches.csv)
 tar -C "$OUT" -cf "$OUT/chunk.tar" "${small[@]}" && (cd "$OUT" && rm "${small[@]}")
 return_kernels
 log "done: $(ls "$OUT" | tr '\n' ' ')"

@@ -285,8 +285,8 @@ def collect(args: argparse.Namespace) -> None:
         shutil.copy(got / "last.pt", run / "checkpoints" / "last.pt")
         for name in ("metrics.csv", "config.json"):
             shutil.copy(small / name, run / name)
-        if (small / "machines.csv").is_file():  # (a run's machines: since 2026-11-30)
-            shutil.copy(small / "machines.csv", run / "machines.csv")
+        if (small / "launches.csv").is_file():  # (a run's machines: since 2026-11-30)
+            shutil.copy(small / "launches.csv", run / "launches.csv")
         if (small / "eval.json").is_file():
             shutil.copy(small / "eval.json", campaign / f"eval-iter{chunk['iteration']:04d}.json")
     if (got / "chunk.log").is_file():

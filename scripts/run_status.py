@@ -6,7 +6,7 @@ quotes, made from the run folders alone (so that it cannot drift from them).
 One row per run, in ``trainer report``'s arm order and with its arm names (the settings in
 which an arm differs from most runs in brackets): seed, env steps so far of the run's
 ``total_steps``, minutes of training (its clock: over every machine that trained it), the
-machines (``machines.csv``; "not recorded" before 2026-11-30) and, once evaluated, the held
+machines (``launches.csv``; "not recorded" before 2026-11-30) and, once evaluated, the held
 rate of ``trainer eval`` (folder ``--eval``: successes over episodes, all objects).
 """
 
@@ -45,7 +45,7 @@ def status_table(run_dirs: list[Path], eval_dir: str = "eval",
             if total is not None:
                 steps += f" of {total / 1e6:.2f}"
             minutes = f"{r.wall_time_s[-1] / 60:.0f}" if len(r.wall_time_s) else "0"
-            machines = "; ".join(dict.fromkeys(words for _, words in r.machines))
+            machines = "; ".join(dict.fromkeys(words for _, words, _ in r.machines))
             if not r.machines or r.machines[0][0] > 1:
                 machines = "; ".join(filter(None, ["not recorded", machines]))
             held = f"**{eval_success(r):.3f}**" if r.per_object is not None else "—"

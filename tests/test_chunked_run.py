@@ -69,7 +69,7 @@ def test_chunks_continue_from_results_and_end_evaluated(builtin_data: Config,
     assert rows[: len(first)] == first and int(rows[-1]["env_steps"]) >= 640
     assert (saved / "eval" / "per_object.csv").is_file()
     # the machines of both launches are kept with it, each from the iteration it trained first
-    launches = _rows(saved / "machines.csv")
+    launches = _rows(saved / "launches.csv")
     assert [int(r["first_iteration"]) for r in launches] == [1, len(first) + 1]
 
 

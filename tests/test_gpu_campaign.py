@@ -111,7 +111,7 @@ checkpoint_every = 1
     assert int(second["iteration"]) == 4 and int(second["env_steps"]) == 64
     rows = list(csv.DictReader((run_dir / "metrics.csv").read_text().splitlines()))
     assert [int(r["iteration"]) for r in rows] == [1, 2, 3, 4]
-    launches = list(csv.DictReader((run_dir / "machines.csv").read_text().splitlines()))
+    launches = list(csv.DictReader((run_dir / "launches.csv").read_text().splitlines()))
     assert [int(r["first_iteration"]) for r in launches] == [1, 3]  # each chunk's machine
     assert json.loads((run_dir / "config.json").read_text())["env"]["num_envs"] == 4
     chunks = list(csv.DictReader((results / "chunks.csv").read_text().splitlines()))

@@ -19,7 +19,7 @@ from torchrl.collectors import Collector
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.objectives import ClipPPOLoss
 
-from geomgrasp.machine import cpu_model
+from geomgrasp.machine import code_version, cpu_model
 from geomprep.config import Config
 from trainer.cli import cli
 from trainer.cli import main as trainer_main
@@ -33,7 +33,7 @@ from trainer.tasks import make_env, observation_spec
 from trainer.training.checkpoint import agent_part, copy_agent_parts, load_agent
 from trainer.training.curriculum import LiftCurriculum
 from trainer.training.outcomes import ObjectOutcomes
-from trainer.training.run_dir import read_machines
+from trainer.training.run_dir import read_launches
 from trainer.training.stop import StopSignals
 
 OBJECTS = "builtin_cylinder,builtin_sphere"
@@ -379,9 +379,10 @@ def test_resume_continues_bit_for_bit(
     ]
     # each launch recorded its machine from the iteration it trained first (the killed one's
     # iteration 3 was redone by the resume)
-    launches = read_machines(killed)
+    launches = read_launches(killed)
     assert [int(r["first_iteration"]) for r in launches] == [1, 3]
     assert launches[1]["cpu"] == cpu_model() and launches[1]["processes"] == "1"
+    assert launches[1]["code"] == code_version()  # (this checkout's commit)
 
 
 def test_object_success_rate_weighs_objects_equally() -> None:

@@ -415,32 +415,34 @@ def test_write_report(run_dirs: list[Path], tmp_path: Path) -> None:
 
 
 def test_machines_say_whether_minutes_compare(run_dirs: list[Path], tmp_path: Path) -> None:
-    """Each run's machines.csv in words per span of iterations; the report says minutes and
-    env steps/s compare across arms only where one machine (recorded) trained every run."""
-    from trainer.training.run_dir import RunDir, record_machine
+    """Each run's launches.csv in words per span of iterations (machine and code); the report
+    says minutes and env steps/s compare across arms only where one machine (recorded) trained
+    every run."""
+    from trainer.training.run_dir import RunDir, record_launch
 
     def launch(first: int, cpu: str, nice: int = 0) -> dict[str, object]:
-        return {"first_iteration": first, "started": "2026-11-30T04:00:00Z", "cpu": cpu,
+        return {"first_iteration": first, "started": "2026-11-30T04:00:00Z",
+                "code": f"c{first}", "cpu": cpu,
                 "cores": 2, "nice": nice, "device": "cpu", "processes": 1, "sim_threads": 1,
                 "torch_threads": 1}
 
     for path in run_dirs:
-        record_machine(RunDir(path), launch(1, "AMD EPYC"))
+        record_launch(RunDir(path), launch(1, "AMD EPYC"))
     out = tmp_path / "report"
     report.write_report(run_dirs, out)
     assert "One machine trained every run" in (out / "report.md").read_text()
     sq0 = RunDir(run_dirs[0])
-    record_machine(sq0, launch(6, "Intel Xeon", nice=5))
-    record_machine(sq0, launch(8, "Intel Xeon", nice=5))
-    record_machine(sq0, launch(4, "Intel Xeon", nice=5))  # resumed from iteration 3: redone
+    record_launch(sq0, launch(6, "Intel Xeon", nice=5))
+    record_launch(sq0, launch(8, "Intel Xeon", nice=5))
+    record_launch(sq0, launch(4, "Intel Xeon", nice=5))  # resumed from iteration 3: redone
     assert report.load_run(sq0.path).machines == (
-        (1, "AMD EPYC, 2 cores"), (4, "Intel Xeon, 2 cores, nice 5"))
-    (RunDir(run_dirs[1]).machines).unlink()
+        (1, "AMD EPYC, 2 cores", "c1"), (4, "Intel Xeon, 2 cores, nice 5", "c4"))
+    RunDir(run_dirs[1]).launches.unlink()
     report.write_report(run_dirs, out)
     text = (out / "report.md").read_text()
     assert "compare only between runs on one machine" in text
-    assert ("`../runs/sq_s0`: iterations 1-3: AMD EPYC, 2 cores; iterations 4-10: Intel Xeon, "
-            "2 cores, nice 5") in text
+    assert ("`../runs/sq_s0`: iterations 1-3: AMD EPYC, 2 cores (code c1); iterations 4-10: "
+            "Intel Xeon, 2 cores, nice 5 (code c4)") in text
     assert "`../runs/sq_s1`: iterations 1-10: not recorded" in text
 
 

@@ -437,7 +437,7 @@ def test_run_status_tables_each_run_where_it_stands(tmp_path: Path, capsys) -> N
     import json
 
     from tests.test_report import _write_run
-    from trainer.training.run_dir import record_machine
+    from trainer.training.run_dir import record_launch
 
     status = script("scripts", "run_status")
     sq = _write_run(tmp_path, "sq", 0, 60, [0.1, 0.5], {"cube": (10, 7)})
@@ -445,9 +445,10 @@ def test_run_status_tables_each_run_where_it_stands(tmp_path: Path, capsys) -> N
     config = json.loads((com / "config.json").read_text())
     config["ppo"]["lr"] = 1e-3
     (com / "config.json").write_text(json.dumps(config))
-    record_machine(RunDir(com), {"first_iteration": 2, "started": "2026-11-30T05:00:00Z",
-                                 "cpu": "AMD EPYC", "cores": 2, "nice": 5, "device": "cpu",
-                                 "processes": 1, "sim_threads": 1, "torch_threads": 1})
+    record_launch(RunDir(com), {"first_iteration": 2, "started": "2026-11-30T05:00:00Z",
+                                "code": "abc", "cpu": "AMD EPYC", "cores": 2, "nice": 5,
+                                "device": "cpu", "processes": 1, "sim_threads": 1,
+                                "torch_threads": 1})
     status.main([str(sq), str(com)])
     lines = capsys.readouterr().out.splitlines()
     assert lines[0] == "| arm | seed | env steps (M) | minutes | machines | held (eval) |"

@@ -30,7 +30,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 from tqdm import tqdm
 
-from geomgrasp.machine import cpu_model, niceness, usable_cores
+from geomgrasp.machine import code_version, cpu_model, niceness, usable_cores
 from trainer.config import AGENT_PARTS, PPOConfig, TrainConfig, check_device
 from trainer.errors import TrainerError
 from trainer.models import Agent
@@ -56,7 +56,7 @@ from trainer.training.grasp_starts import (
 )
 from trainer.training.outcomes import EndedEpisodes, EpisodeStats
 from trainer.training.progress import NoLog, ProgressLog, RunClock
-from trainer.training.run_dir import RunDir, record_machine
+from trainer.training.run_dir import RunDir, record_launch
 from trainer.training.stop import StopSignals
 
 LOSS_KEYS = ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx", "clip_fraction")  # noqa: E501
@@ -377,25 +377,24 @@ def build_parts(
             env.stagger_next_reset()  # (a resumed run's envs continue where they stood)
     env.set_lift_target(state.curriculum.targets())
     if world.is_main:
-        record_machine(run, launch_machine(state.iteration + 1, env.device, world.size,
+        record_launch(run, launch_row(state.iteration + 1, env.device, world.size,
                                            env_cfg.nthread, cfg.run.torch_threads))
     return RunParts(env, agent, update, state, notes)
 
 
-def launch_machine(
+def launch_row(
     first_iteration: int, device: torch.device, processes: int, sim_threads: int,
     torch_threads: int,
 ) -> dict[str, Any]:
-    """The row of ``machines.csv`` (``trainer.training.run_dir.MACHINE_COLUMNS``) for a launch
-    that trains from ``first_iteration`` on this machine: a run's minutes and env steps per
-    second compare only with other runs' on the same machine, and a run resumed across
-    sessions may change machines."""
+    """The row of ``launches.csv`` (``trainer.training.run_dir.LAUNCH_COLUMNS``) for a launch
+    that trains from ``first_iteration``: this code on this machine."""
     name = torch.cuda.get_device_name(device) if device.type == "cuda" else str(device)
     return {
         "first_iteration": first_iteration,
         "started": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        "cpu": cpu_model(), "cores": usable_cores(), "nice": niceness(), "device": name,
-        "processes": processes, "sim_threads": sim_threads, "torch_threads": torch_threads,
+        "code": code_version(), "cpu": cpu_model(), "cores": usable_cores(), "nice": niceness(),
+        "device": name, "processes": processes, "sim_threads": sim_threads,
+        "torch_threads": torch_threads,
     }
 
 

@@ -7,7 +7,7 @@ A run directory is read as the trainer writes it::
     RUN_DIR/metrics.csv            one row per PPO iteration: env_steps, wall_time_s,
                                    object_success_rate (the mean over objects; success_rate, over
                                    all ended episodes, in runs logged before it existed)
-    RUN_DIR/machines.csv           optional: the machine of each launch (start or resume)
+    RUN_DIR/launches.csv           optional: the code and machine of each start and resume
     RUN_DIR/eval/per_object.csv    optional (``trainer eval``): object, episodes, successes;
                                    ``eval`` or another folder of ``trainer eval --out`` (the
                                    report's ``eval_dir``), with the success criterion in table.md
@@ -53,7 +53,7 @@ import numpy as np
 from geomgrasp.files import atomic_path
 from trainer.config import ABSENT_MEANS
 from trainer.errors import TrainerError
-from trainer.training.run_dir import RunDir, read_machines
+from trainer.training.run_dir import RunDir, read_launches
 
 GroupKey = tuple[str, str, str, str]
 """(task, representation, reward kind, robot kind): task ``lift`` or ``binN``, representation
@@ -186,9 +186,9 @@ class Run:
     """Per object, (face-up episodes, their successes, upside-down episodes, their successes)
     from ``trainer eval``'s ``by_start.csv`` (how the target rested after the first action);
     None where the evaluation did not record it."""
-    machines: tuple[tuple[int, str], ...] = ()
-    """(first iteration, the machine in words) per launch, from ``machines.csv``; empty for a
-    run trained before the file existed."""
+    machines: tuple[tuple[int, str, str], ...] = ()
+    """(first iteration, the machine in words, the code) per launch, from ``launches.csv``;
+    empty for a run trained before the file existed."""
 
     @property
     def has_curriculum(self) -> bool:
@@ -258,12 +258,13 @@ def load_run(path: str | Path, eval_dir: str = "eval") -> Run:
         eval_criterion=_read_criterion(path / eval_dir / "table.md") if per_object else None,
         endings=_read_endings(path / eval_dir / "endings.csv") if per_object else None,
         by_start=_read_by_start(path / eval_dir / "by_start.csv") if per_object else None,
-        machines=tuple((int(r["first_iteration"]), _machine_words(r)) for r in read_machines(run)),
+        machines=tuple((int(r["first_iteration"]), _machine_words(r), r["code"])
+                       for r in read_launches(run)),
     )
 
 
 def _machine_words(row: dict[str, str]) -> str:
-    """A ``machines.csv`` row in words, e.g. ``AMD EPYC, 2 cores, nice 5``."""
+    """A ``launches.csv`` row in words, e.g. ``AMD EPYC, 2 cores, nice 5``."""
     words = [row["cpu"], f"{row['cores']} cores"]
     if row["nice"] not in ("", "0"):
         words.append(f"nice {row['nice']}")
@@ -275,8 +276,9 @@ def _machine_words(row: dict[str, str]) -> str:
 
 
 def machines_text(runs: Sequence[Run], out_dir: Path) -> list[str]:
-    """Per run, the machines that trained which of its iterations (``machines.csv``), and
-    whether the arms' minutes and env steps/s compare: only where one machine trained them all."""
+    """Per run, the machines (and code) that trained which of its iterations (``launches.csv``),
+    and whether the arms' minutes and env steps/s compare: only where one machine trained them
+    all."""
     lines, seen = [], set()
     for r in runs:
         last = len(r.env_steps)
@@ -285,10 +287,10 @@ def machines_text(runs: Sequence[Run], out_dir: Path) -> list[str]:
             end = r.machines[0][0] - 1 if r.machines else last
             spans.append(f"iterations 1-{end}: not recorded")
             seen.add(None)
-        for k, (first, words) in enumerate(r.machines):
+        for k, (first, words, code) in enumerate(r.machines):
             end = r.machines[k + 1][0] - 1 if k + 1 < len(r.machines) else last
             if first <= end:
-                spans.append(f"iterations {first}-{end}: {words}")
+                spans.append(f"iterations {first}-{end}: {words} (code {code})")
             seen.add(re.sub(r", nice -?[0-9]+", "", words))  # (the same machine, niced or not)
         lines.append(f"- `{_relative_to(r.path, out_dir)}`: " + "; ".join(spans))
     if seen == {next(iter(seen))} and None not in seen:
@@ -296,7 +298,7 @@ def machines_text(runs: Sequence[Run], out_dir: Path) -> list[str]:
     else:
         verdict = ("**Minutes and env steps/s compare only between runs on one machine**, and "
                    "these runs were trained on more than one or on machines not recorded "
-                   "(`machines.csv` exists since 2026-11-30): compare the arms by env steps.")
+                   "(`launches.csv` exists since 2026-11-30): compare the arms by env steps.")
     return [verdict, "", *lines, ""]
 
 

@@ -25,14 +25,16 @@ METRICS = (
 )
 """The columns of ``metrics.csv``, one row per PPO iteration."""
 
-MACHINE_COLUMNS = (
-    "first_iteration", "started", "cpu", "cores", "nice", "device", "processes", "sim_threads",
-    "torch_threads",
+LAUNCH_COLUMNS = (
+    "first_iteration", "started", "code", "cpu", "cores", "nice", "device", "processes",
+    "sim_threads", "torch_threads",
 )
-"""The columns of ``machines.csv``: one row per launch of the run (start or resume), from the
-iteration it trains first: when it started (UTC), the CPU, the cores the process may use, its
-niceness, the torch device (a GPU by name), the processes (torchrun) and each one's simulation
-and torch threads."""
+"""The columns of ``launches.csv``: one row per launch of the run (start or resume), from the
+iteration it trains first: when it started (UTC), the code that ran (``geomgrasp.machine.
+code_version``), the CPU, the cores the process may use, its niceness, the torch device (a GPU
+by name), the processes (torchrun) and each one's simulation and torch threads. A run resumed
+across sessions may change machines and code: its minutes and env steps per second compare
+only where they did not."""
 
 GROWABLE = ("run.total_steps", "run.max_minutes")
 """The config keys a resumed run may change: it may only grow longer."""
@@ -41,9 +43,9 @@ GROWABLE = ("run.total_steps", "run.max_minutes")
 @dataclass(frozen=True)
 class RunDir:
     """A training run on disk: ``config.json`` (the resolved config), ``metrics.csv`` (one row
-    per iteration), ``machines.csv`` (what each launch trained on), ``tb/`` (TensorBoard),
-    ``checkpoints/iter_NNNNNN.pt`` and ``last.pt``, and with ``[run] grasp_starts``
-    ``grasp_starts.pt``, with ``[run] warmup_objects`` ``warmup/``."""
+    per iteration), ``launches.csv`` (the code and machine of each start and resume), ``tb/``
+    (TensorBoard), ``checkpoints/iter_NNNNNN.pt`` and ``last.pt``, and with ``[run]
+    grasp_starts`` ``grasp_starts.pt``, with ``[run] warmup_objects`` ``warmup/``."""
 
     path: Path
 
@@ -56,8 +58,8 @@ class RunDir:
         return self.path / "metrics.csv"
 
     @property
-    def machines(self) -> Path:
-        return self.path / "machines.csv"
+    def launches(self) -> Path:
+        return self.path / "launches.csv"
 
     @property
     def tensorboard(self) -> Path:
@@ -158,7 +160,7 @@ class RunDir:
 
     def clear(self) -> None:
         """Delete what a run writes here (nothing else in the directory)."""
-        for path in (self.config, self.metrics, self.machines, self.grasp_starts):
+        for path in (self.config, self.metrics, self.launches, self.grasp_starts):
             path.unlink(missing_ok=True)
         for path in (self.checkpoints, self.tensorboard, self.path / "eval", self.warmup):
             shutil.rmtree(path, ignore_errors=True)
@@ -209,27 +211,27 @@ def changed_keys(a: dict[str, Any], b: dict[str, Any], prefix: str = "") -> list
     return changed
 
 
-# --- machines.csv ----------------------------------------------------------------------------
-def read_machines(run: RunDir) -> list[dict[str, str]]:
-    """``run``'s ``machines.csv`` rows (``MACHINE_COLUMNS``), oldest first; none for a run
+# --- launches.csv ----------------------------------------------------------------------------
+def read_launches(run: RunDir) -> list[dict[str, str]]:
+    """``run``'s ``launches.csv`` rows (``LAUNCH_COLUMNS``), oldest first; none for a run
     trained before the file existed (2026-11-30) or one whose file is unreadable."""
     try:
-        with open(run.machines, newline="") as handle:
+        with open(run.launches, newline="") as handle:
             rows = list(csv.DictReader(handle))
     except (OSError, csv.Error, UnicodeDecodeError):
         return []
-    if not rows or any(set(MACHINE_COLUMNS) - set(r) for r in rows):
+    if not rows or any(set(LAUNCH_COLUMNS) - set(r) for r in rows):
         return []
     return rows
 
 
-def record_machine(run: RunDir, row: dict[str, Any]) -> None:
-    """Append the machine a launch of ``run`` trains on (``row``: ``MACHINE_COLUMNS``); the
+def record_launch(run: RunDir, row: dict[str, Any]) -> None:
+    """Append a launch of ``run`` (``row``: ``LAUNCH_COLUMNS``); the
     rows of earlier launches from its ``first_iteration`` on are dropped, as their iterations
     will be redone (a killed run resumes from its last checkpoint)."""
     first = int(row["first_iteration"])
-    kept = [r for r in read_machines(run) if int(r["first_iteration"]) < first]
-    with atomic_path(run.machines) as tmp, open(tmp, "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=MACHINE_COLUMNS)
+    kept = [r for r in read_launches(run) if int(r["first_iteration"]) < first]
+    with atomic_path(run.launches) as tmp, open(tmp, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=LAUNCH_COLUMNS)
         writer.writeheader()
-        writer.writerows([*kept, {k: row[k] for k in MACHINE_COLUMNS}])
+        writer.writerows([*kept, {k: row[k] for k in LAUNCH_COLUMNS}])
