@@ -22,7 +22,7 @@ sys.path.insert(0, str(ROOT))
 
 from trainer.errors import TrainerError  # noqa: E402
 from trainer.report import (  # noqa: E402
-    _without,
+    allowing_differences,
     eval_success,
     group_labels,
     group_runs,
@@ -35,7 +35,7 @@ HEADER = ("arm", "seed", "env steps (M)", "minutes", "machines", "held (eval)")
 
 def status_table(run_dirs: list[Path], eval_dir: str = "eval",
                  allow_differ: tuple[str, ...] = ()) -> str:
-    runs = _without([load_run(d, eval_dir) for d in run_dirs], allow_differ)
+    runs = allowing_differences([load_run(d, eval_dir) for d in run_dirs], allow_differ)
     labels = group_labels(runs)
     lines = ["| " + " | ".join(HEADER) + " |", "|---|---:|---:|---:|---|---:|"]
     for key, members in group_runs(runs).items():

@@ -1166,7 +1166,7 @@ def _check_thresholds(thresholds: Sequence[float]) -> None:
         raise TrainerError(f"thresholds {list(thresholds)}: each at most once")
 
 
-def _without(runs: list[Run], allow_differ: Sequence[str]) -> list[Run]:
+def allowing_differences(runs: list[Run], allow_differ: Sequence[str]) -> list[Run]:
     """The runs with the settings in ``allow_differ`` dropped, so that seeds that differ in
     them are one group; a name no run's config has is refused (a typo would drop nothing)."""
     unknown = [
@@ -1277,7 +1277,7 @@ def write_report(
     if worst_count < 1:
         raise TrainerError(f"--worst {worst_count}: list at least one object per arm")
     unique = list(dict.fromkeys(Path(d).resolve() for d in run_dirs))
-    runs = _without([load_run(d, eval_dir) for d in unique], allow_differ)
+    runs = allowing_differences([load_run(d, eval_dir) for d in unique], allow_differ)
     out_dir = Path(out_dir)
     command = report_command(unique, out_dir, compare, eval_dir, thresholds, allow_differ,
                              worst_count)
