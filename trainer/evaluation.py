@@ -28,7 +28,7 @@ from trainer.grasps.runner import keypoint_distances
 from trainer.report import task_label
 from trainer.session import EVAL_SEED, MAX_ENVS, Episodes, EvalSession
 from trainer.tasks import GraspTask
-from trainer.training.run_dir import RunDir
+from trainer.training.run_dir import BY_START_COLUMNS, RunDir
 
 MAX_ROUNDS = 20
 """Rounds of bin episodes at most (``trainer eval --max-rounds``)."""
@@ -436,8 +436,7 @@ def write_eval(run: RunDir, result: EvalResult, folder: str = "eval") -> None:
     if result.face_up is not None:
         with atomic_path(out / "by_start.csv") as tmp, open(tmp, "w", newline="") as handle:
             writer = csv.writer(handle)
-            writer.writerow(["object", "face_up_episodes", "face_up_successes",
-                             "upside_down_episodes", "upside_down_successes"])
+            writer.writerow(BY_START_COLUMNS)
             for k, name in enumerate(result.names):
                 writer.writerow([name, *result.face_up[k], *result.upside_down(k)])
     if result.endings is not None:

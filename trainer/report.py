@@ -53,7 +53,7 @@ import numpy as np
 from geomgrasp.files import atomic_path
 from trainer.config import ABSENT_MEANS
 from trainer.errors import TrainerError
-from trainer.training.run_dir import RunDir, read_launches
+from trainer.training.run_dir import BY_START_COLUMNS, RunDir, read_launches
 
 GroupKey = tuple[str, str, str, str]
 """(task, representation, reward kind, robot kind): task ``lift`` or ``binN``, representation
@@ -326,8 +326,7 @@ def _read_endings(path: Path) -> dict[str, dict[str, int]] | None:
 def _read_by_start(path: Path) -> dict[str, tuple[int, int, int, int]] | None:
     """``by_start.csv`` (object, face-up episodes and successes, upside-down ones); None if
     absent or unreadable (the table that reads it is left out rather than the report)."""
-    columns = ("face_up_episodes", "face_up_successes", "upside_down_episodes",
-               "upside_down_successes")
+    columns = BY_START_COLUMNS[1:]
     if not path.is_file():
         return None
     try:

@@ -36,6 +36,14 @@ by name), the processes (torchrun) and each one's simulation and torch threads. 
 across sessions may change machines and code: its minutes and env steps per second compare
 only where they did not."""
 
+BY_START_COLUMNS = (
+    "object", "face_up_episodes", "face_up_successes", "upside_down_episodes",
+    "upside_down_successes",
+)
+"""The columns of an evaluation's ``by_start.csv`` (``trainer eval`` writes it into the run's
+evaluation folder, ``trainer report`` reads it): per object, the episodes whose target started
+face up and upside down, and their successes."""
+
 GROWABLE = ("run.total_steps", "run.max_minutes")
 """The config keys a resumed run may change: it may only grow longer."""
 
