@@ -36,13 +36,12 @@ def read_eval(folder: Path) -> tuple[dict[str, tuple[int, int]], dict[str, int]]
     for row in csv.DictReader(path.open()):
         if int(row["episodes"]):
             rates[row["object"]] = (int(row["episodes"]), int(row["successes"]))
-    endings = dict.fromkeys(ENDINGS, 0)
+    endings: dict[str, int] = {}
     if (folder / "endings.csv").is_file():
         for row in csv.DictReader((folder / "endings.csv").open()):
             for ending in ENDINGS:
-                endings[ending] += int(row[ending])
-    else:
-        endings = {}
+                if ending in row:  # never_reached: recorded since 2026-11-30
+                    endings[ending] = endings.get(ending, 0) + int(row[ending])
     return rates, endings
 
 
@@ -74,7 +73,11 @@ def main(evals: tuple[Path, ...]) -> None:
     if len(evals) < 2:
         raise click.UsageError("pass BASE_EVAL and at least one OTHER_EVAL")
     read = [read_eval(folder) for folder in evals]
-    kept = [e for e in ENDINGS if all(endings for _, endings in read)]
+    if not all("never_reached" in endings for _, endings in read if endings):
+        for _, endings in read:  # an evaluation from before 2026-11-30: as it counted them
+            if "never_reached" in endings:
+                endings["never_lifted"] += endings.pop("never_reached")
+    kept = [e for e in ENDINGS if all(e in endings for _, endings in read)]
     click.echo("| evaluation | episodes | held | " + " | ".join(e.replace("_", " ") for e in
                                                               kept[1:]) + " |")
     click.echo("|---|---:|---:|" + "---:|" * len(kept[1:]))

@@ -35,6 +35,10 @@ def test_timings_may_differ_nothing_else(tmp_path: Path, capsys: pytest.CaptureF
     out = capsys.readouterr().out
     assert "lift: DIFFERENT" in out and "row 1 success_rate: 0.25 vs 0.5" in out
     assert "eval/table.md differs" in out
+    # the machine, code and time of an evaluation (table.md's last line) are not a result
+    other = _run(tmp_path / "d", "25.1", "0.5",
+                 table="box 0/4\n\nEvaluated on AMD EPYC with code 0123abcd, 2026-11-30.\n")
+    assert compare_runs.main([str(other), str(reference), "--runs", "lift"]) == 0
     assert compare_runs.differences(tmp_path / "none", reference / "lift") == [
         f"{tmp_path / 'none'} holds no metrics.csv"
     ]

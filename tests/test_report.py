@@ -5,6 +5,7 @@ Rows are iterations i = 1, 2, ...; env_steps = 100 000 i, wall_time_s = (seconds
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import replace
@@ -713,6 +714,21 @@ def test_worst_objects_pool_the_seeds_endings(run_dirs: list[Path], tmp_path: Pa
         "| plate | 20 | 8 | 10 | 2 |",
     ]
     assert table.splitlines()[5] == "| mug | 20 | 14 | 5 | 1 |" and "com" not in table
+    # a seed evaluated since never reached is recorded, beside one from before: its never
+    # reached are counted as never lifted, as the older one counted them
+    split = {obj: {"success": s, "never reached": 2, "never lifted": n - 2, "dropped": d}
+             for obj, (s, n, d) in endings["sq_s1"].items() if n >= 2}
+    runs[1] = dataclasses.replace(runs[1], endings=split)
+    assert report.worst_objects_table(runs, count=2).splitlines()[2:6] == [
+        "| object | episodes | success | never lifted | dropped |", "|---|---:|---:|---:|---:|",
+        "| plate | 20 | 8 | 10 | 2 |", "| mug | 20 | 14 | 5 | 1 |"]
+    for k, name in enumerate(("sq_s0", "sq_s1")):  # both seeds with it: the column is kept
+        split = {obj: {"success": s, "never reached": 1, "never lifted": n - 1, "dropped": d}
+                 for obj, (s, n, d) in endings[name].items() if n >= 1}
+        runs[k] = dataclasses.replace(runs[k], endings=split)
+    assert report.worst_objects_table(runs, count=1).splitlines()[2:5] == [
+        "| object | episodes | success | never reached | never lifted | dropped |",
+        "|---|---:|---:|---:|---:|---:|", "| plate | 20 | 8 | 2 | 8 | 2 |"]
     out = tmp_path / "report"
     report.write_report(run_dirs, out, worst_count=2)
     text = (out / "report.md").read_text()

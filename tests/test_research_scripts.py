@@ -431,6 +431,37 @@ def test_paired_evals_compares_the_same_episodes_by_object(tmp_path: Path) -> No
         done.output
 
 
+def test_paired_evals_folds_never_reached_into_never_lifted_beside_an_older_eval(
+    tmp_path: Path,
+) -> None:
+    """An evaluation from before never reached was recorded counts those episodes as never
+    lifted: compared with it, a newer one's never reached are folded back into never lifted
+    (the same episodes, counted the same way); two newer ones keep the column."""
+    from click.testing import CliRunner
+
+    paired = script("scripts", "paired_evals")
+    old = _eval_folder(tmp_path / "old", {"a": (20, 10)})
+    new = tmp_path / "new"
+    new.mkdir()
+    (new / "per_object.csv").write_text(
+        "object,episodes,successes,success_rate,task,bin_objects,context,representation\n"
+        "a,20,12,0.6000,lift,,none,bbox\n")
+    (new / "endings.csv").write_text(
+        "object,episodes,success,never_reached,never_lifted,dropped,stalled,knocked_off\n"
+        "a,20,12,5,3,0,0,0\n")
+    done = CliRunner().invoke(paired.main, [str(old), str(new)])
+    assert done.exit_code == 0, done.output
+    lines = done.output.splitlines()
+    assert "never reached" not in lines[0]
+    assert lines[3] == f"| {new} | 20 | 0.600 | 0.400 | 0.000 | 0.000 | 0.000 |"
+    done = CliRunner().invoke(paired.main, [str(new), str(new)])
+    assert done.output.splitlines()[0] == (
+        "| evaluation | episodes | held | never reached | never lifted | dropped | stalled "
+        "| knocked off |")
+    assert done.output.splitlines()[2] == (
+        f"| {new} | 20 | 0.600 | 0.250 | 0.150 | 0.000 | 0.000 | 0.000 |")
+
+
 def test_run_status_tables_each_run_where_it_stands(tmp_path: Path, capsys) -> None:  # noqa: ANN001
     """scripts/run_status.py: one row per run in the report's arm order and names, its env steps
     of its budget, minutes, machines and evaluated held rate; a missing run is one line."""

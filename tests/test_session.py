@@ -162,6 +162,12 @@ def test_eval_names_how_each_episode_ended(dice_mug: Path) -> None:
     ends.start = torch.tensor([0.02, 0.02, 0.02, 0.02, 0.02])
     ends.top = torch.tensor([0.025, 0.10, 0.10, 0.25, 0.02])
     ends.last = torch.tensor([0.02, 0.03, 0.09, 0.25, -0.20])
+    ends.reached = torch.tensor([True, True, True, True, True])
     success = torch.tensor([False, False, False, True, False])
     assert [ENDINGS[i] for i in ends._classify(success)] == [
         "never lifted", "dropped", "stalled", "success", "knocked off"]
+    # a target that never rose is never reached where two pads never came within 2 cm of it
+    # together; one that rose counts by its heights whatever the pads did
+    ends.reached = torch.tensor([False, False, True, True, True])
+    assert [ENDINGS[i] for i in ends._classify(success)] == [
+        "never reached", "dropped", "stalled", "success", "knocked off"]

@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import dataclasses
+import datetime
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +22,7 @@ import torch
 from tensordict import TensorDictBase
 
 from geomgrasp.files import atomic_path
+from geomgrasp.machine import code_version, cpu_model
 from geomgrasp.rotations import quat_to_matrix
 from trainer.errors import TrainerError
 from trainer.grasps.outcomes import HELD_DISTANCE, HELD_PADS
@@ -247,8 +249,11 @@ class StartsFaceUp:
                                        minlength=num_objects).tolist(), strict=True))
 
 
-ENDINGS = ("success", "never lifted", "dropped", "stalled", "knocked off")
-"""How an episode ends (``EpisodeEndings``)."""
+ENDINGS = ("success", "never reached", "never lifted", "dropped", "stalled", "knocked off")
+"""How an episode ends (``EpisodeEndings``). ``never reached`` and ``never lifted`` split the
+episodes whose target never rose: the hand never came into a holding pose on it (a policy
+that does not find the object), or it did and the target still did not rise (one that finds
+it but cannot grasp it). Evaluations before 2026-11-30 have ``never lifted`` for both."""
 LIFTED_RISE = 0.01
 """A target whose centre never rose this far (m) over its episode was ``never lifted``."""
 DROP = 0.03
@@ -260,15 +265,20 @@ KNOCKED_OFF = 0.05
 def classify_endings(
     start: torch.Tensor, top: torch.Tensor, last: torch.Tensor, success: torch.Tensor,
     lifted: float = LIFTED_RISE, drop: float = DROP, knocked_off: float | None = KNOCKED_OFF,
+    reached: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """(E,) each episode's ending (an index into ``ENDINGS``) from its target centre's height
     (m) at the start, its highest and at the end, and whether it succeeded: ``success``; then
     ``knocked off`` (ended ``knocked_off`` below its start; None: not a class); ``never
-    lifted`` (never rose ``lifted``); ``dropped`` (ended more than ``drop`` below its highest);
-    else ``stalled``."""
+    lifted`` (never rose ``lifted``), ``never reached`` instead where ``reached`` (E,) bool is
+    given and false (the pads never came into a holding pose on it; None: not a class);
+    ``dropped`` (ended more than ``drop`` below its highest); else ``stalled``."""
     out = torch.full(success.shape, ENDINGS.index("stalled"), dtype=torch.long)
     out[last < top - drop] = ENDINGS.index("dropped")
-    out[top - start < lifted] = ENDINGS.index("never lifted")
+    never = top - start < lifted
+    out[never] = ENDINGS.index("never lifted")
+    if reached is not None:
+        out[never & ~reached] = ENDINGS.index("never reached")
     if knocked_off is not None:
         out[last < start - knocked_off] = ENDINGS.index("knocked off")
     out[success] = ENDINGS.index("success")
@@ -277,10 +287,12 @@ def classify_endings(
 
 class EpisodeEndings:
     """Per episode, how it ended (``classify_endings``: success, knocked off the table, never
-    lifted, dropped, or stalled up short of success), by the target centre's height. The
-    ``on_reset``, ``on_step`` and ``on_episode`` hooks of ``run_episodes`` (``hooks()``),
-    counted per object over the episodes they returned (``counts``). scripts/episode_outcomes.py
-    prints each episode's details with the same classes."""
+    reached, never lifted, dropped, or stalled up short of success), by the target centre's
+    height and whether ``HELD_PADS`` fingertip pads were ever within ``HELD_DISTANCE`` of its
+    surface together (the pose a hold needs: ``reached``). The ``on_reset``, ``on_step`` and
+    ``on_episode`` hooks of ``run_episodes`` (``hooks()``), counted per object over the
+    episodes they returned (``counts``). scripts/episode_outcomes.py prints each episode's
+    details with the same classes."""
 
     def __init__(self) -> None:
         self.parts: list[torch.Tensor] = []
@@ -293,11 +305,13 @@ class EpisodeEndings:
     def on_reset(self, env: GraspTask, td: TensorDictBase) -> None:
         z = env.target_pose()[0][:, 2].cpu()
         self.start, self.top, self.last = z, z.clone(), z
+        self.reached = _in_reach(env)
         self.parts.append(torch.full((env.num_envs,), -1, dtype=torch.long))
 
     def on_step(self, env: GraspTask, step: int, td: TensorDictBase) -> None:
         self.last = env.target_pose()[0][:, 2].cpu()
         self.top = torch.maximum(self.top, self.last)
+        self.reached |= _in_reach(env)
 
     def on_episode(self, env: GraspTask, ended: torch.Tensor, success: torch.Tensor) -> None:
         ending = self.parts[-1]
@@ -306,7 +320,7 @@ class EpisodeEndings:
 
     def _classify(self, success: torch.Tensor) -> torch.Tensor:
         """(E,) the ending of each env were its episode over now."""
-        return classify_endings(self.start, self.top, self.last, success)
+        return classify_endings(self.start, self.top, self.last, success, reached=self.reached)
 
     def endings(self) -> torch.Tensor:
         """(N,) every episode's ending, in the order of the runs (an episode still running at
@@ -324,6 +338,13 @@ class EpisodeEndings:
         return {name: torch.bincount(episodes.target[endings == k],
                                      minlength=num_objects).tolist()
                 for k, name in enumerate(ENDINGS)}
+
+
+def _in_reach(env: GraspTask) -> torch.Tensor:
+    """(E,) bool on the CPU: ``HELD_PADS`` or more fingertip pads within ``HELD_DISTANCE`` of
+    the target's surface now."""
+    pads = keypoint_distances(env)[:, 1:]
+    return ((pads < HELD_DISTANCE).sum(-1) >= HELD_PADS).cpu()
 
 
 class SuccessPads:
@@ -367,6 +388,18 @@ class SuccessPads:
         nearest = pads.amin(-1)
         return [float(nearest[ids == k].median()) if bool((ids == k).any()) else None
                 for k in range(num_objects)]
+
+
+EVALUATED = "Evaluated on "
+"""How table.md's last line starts: the machine and code that evaluated (``evaluated_line``)."""
+
+
+def evaluated_line() -> str:
+    """The machine, code and time of an evaluation, for its table.md: the same checkpoint and
+    seed end some contact-rich episodes differently on another CPU model (its floating point),
+    though never on one machine (results/cpu-comparison-2026-11-29/, 2026-11-30)."""
+    now = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    return f"{EVALUATED}{cpu_model()} with code {code_version()}, {now}."
 
 
 def _metres(value: float | None) -> str:
@@ -485,7 +518,9 @@ def write_eval(run: RunDir, result: EvalResult, folder: str = "eval") -> None:
             near_text = "—" if near is None else f"{100 * near:.1f} cm"
             lines.append(f"| {name} | {result.successes[k]} | {result.held[k]} | {near_text} |")
     if result.endings is not None:
-        lines += ["", f"How the episodes ended (the target's centre: never lifted "
+        lines += ["", f"How the episodes ended (never reached: {HELD_PADS} fingertip pads never "
+                  f"within {100 * HELD_DISTANCE:.0f} cm of the target together, and its centre "
+                  f"never rose {100 * LIFTED_RISE:.0f} cm; the target's centre: never lifted "
                   f"{100 * LIFTED_RISE:.0f} cm, dropped {100 * DROP:.0f} cm below its highest, "
                   f"stalled up but short of success, knocked off {100 * KNOCKED_OFF:.0f} cm "
                   "below its start):", "",
@@ -499,5 +534,6 @@ def write_eval(run: RunDir, result: EvalResult, folder: str = "eval") -> None:
                   f"{', '.join(result.short)}."]
     if result.absent:
         lines += ["", f"In none of the bins (never a target): {', '.join(result.absent)}."]
+    lines += ["", evaluated_line()]
     with atomic_path(out / "table.md") as tmp:
         tmp.write_text("\n".join(lines) + "\n")

@@ -1193,10 +1193,16 @@ def worst_objects_table(runs: Sequence[Run], count: int = WORST) -> str:
         ended = [r for r in members if r.endings is not None and r.per_object is not None]
         if not ended:
             continue
+        # an evaluation from before 2026-11-30 counted never reached as never lifted: beside
+        # one, the others' never reached are folded back (the arm's episodes counted alike)
+        fold = not all("never reached" in by for r in ended for by in r.endings.values())
         totals: dict[str, Counter[str]] = {}
         for run in ended:
             for name, by_ending in run.endings.items():
-                totals.setdefault(name, Counter()).update(by_ending)
+                by = Counter(by_ending)
+                if fold and "never reached" in by:
+                    by["never lifted"] += by.pop("never reached")
+                totals.setdefault(name, Counter()).update(by)
         endings = list(dict.fromkeys(e for by in totals.values() for e in by))
         episodes = {name: sum(by.values()) for name, by in totals.items()}
         rate = {name: by.get("success", 0) / max(1, episodes[name])
@@ -1335,8 +1341,11 @@ def write_report(
         if worst:
             parts += [f"## The {worst_count} worst objects of each arm and how their episodes "
                       "ended", "",
-                      "From `trainer eval`'s `endings.csv`: the target's centre never rose 1 cm "
-                      "(never lifted), rose and ended 3 cm below its highest (dropped), stayed "
+                      "From `trainer eval`'s `endings.csv`: two fingertip pads never within "
+                      "2 cm of the target together and its centre never rose 1 cm (never "
+                      "reached: recorded since 2026-11-30, counted as never lifted before), "
+                      "the pads did and it never rose 1 cm (never lifted), it "
+                      "rose and ended 3 cm below its highest (dropped), stayed "
                       "up short of success (stalled), or ended 5 cm below its start (knocked "
                       "off the table).", "", worst]
     else:
