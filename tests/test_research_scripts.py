@@ -270,6 +270,37 @@ def dice_mug(builtin_data: Config, tmp_path_factory: pytest.TempPathFactory) -> 
     return tiny_dice_mug_run(builtin_data, tmp_path_factory.mktemp("dice-mug") / "run").path
 
 
+def test_closest_approach_keeps_each_episodes_nearest_palm(dice_mug: Path) -> None:
+    """scripts/closest_approach.py: per env the nearest palm distance over the steps and the
+    palm's height above the centre at that step (not at another); on a tiny run one row per
+    object whose episodes and successes are trainer eval's."""
+    import torch
+
+    from trainer.evaluation import evaluate
+
+    ca = script("scripts", "closest_approach")
+    approach = ca.ClosestApproach()
+    approach.parts.append((torch.full((2,), float("inf")), torch.zeros(2)))
+    approach.update(torch.tensor([0.05, 0.02]), torch.tensor([0.10, 0.03]))
+    approach.update(torch.tensor([0.03, 0.04]), torch.tensor([0.06, 0.09]))
+    distance, above = approach.results()
+    assert distance.tolist() == pytest.approx([0.03, 0.02])
+    assert above.tolist() == pytest.approx([0.06, 0.03])
+
+    result = evaluate(dice_mug, episodes_per_object=3, out="eval-approach")
+    lines = ca.main([str(dice_mug), "--episodes-per-object", "3"])
+    assert len(lines) == 2 + 2 and lines[0].startswith("| object | episodes | successes |")
+    for k, line in enumerate(lines[2:]):
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        assert cells[0] == result.names[k] and int(cells[1]) == 3
+        assert int(cells[2]) == result.successes[k]
+        assert int(cells[3]) == result.endings["never reached"][k]
+        failed = cells[4]  # an untrained policy: some episode fails, its palm short of inside
+        assert failed == "—" or float(failed) >= 0
+    with pytest.raises(SystemExit):
+        ca.main([str(dice_mug), "--episodes-per-object", "0"])
+
+
 def test_eval_upright_splits_exactly_the_episodes_of_trainer_eval(dice_mug: Path) -> None:
     """scripts/eval_upright.py replays trainer eval's episodes: per object its upright and
     upside-down episodes add up to the eval's episodes, their held ones to its successes."""

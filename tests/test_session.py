@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from geomprep.config import Config
-from tests.tiny_runs import tiny_dice_mug_run
+from tests.tiny_runs import tiny_dice_mug_run, tiny_run
 from trainer.errors import TrainerError
 from trainer.evaluation import evaluate
 from trainer.session import MAX_ENVS, Episodes, EvalSession, success_reward
@@ -137,6 +137,26 @@ def test_eval_splits_each_object_by_how_its_target_started(dice_mug: Path) -> No
     split = script("scripts", "eval_upright").split_by_start_up(dice_mug, 6)
     expected = [(up, up_held) for _, up, up_held, _, _ in split]
     assert result.face_up == expected
+
+
+def test_eval_without_sdf_grids_leaves_never_reached_out(
+    builtin_data: Config, tmp_path: Path,
+) -> None:
+    """A run that loads no SDF grids (the centre-of-mass reward, no hold test) has nothing to
+    measure the pads' reach with: its evaluation counts the other endings, never reached is
+    not a column (rather than zero, or a crash)."""
+    import csv
+
+    run = tiny_run(builtin_data, tmp_path / "run", "builtin_dice",
+                   reward={"kind": "com", "hold_tips": 0})
+    result = evaluate(run.path, episodes_per_object=2)
+    assert result.endings is not None and "never reached" not in result.endings
+    assert sum(by[0] for by in result.endings.values()) == 2
+    header = (run.path / "eval" / "endings.csv").read_text().splitlines()[0]
+    assert header == "object,episodes,success,never_lifted,dropped,stalled,knocked_off"
+    assert "never reached" not in (run.path / "eval" / "table.md").read_text()
+    rows = list(csv.DictReader((run.path / "eval" / "endings.csv").open()))
+    assert rows[0]["object"] == "builtin_dice"
 
 
 def test_eval_names_how_each_episode_ended(dice_mug: Path) -> None:

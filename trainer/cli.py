@@ -630,7 +630,7 @@ def eval_cmd(
     if bin_objects is not None:
         _at_least("--bin-objects", bin_objects, 1)
     _device(device)
-    from trainer.evaluation import ENDINGS, evaluate
+    from trainer.evaluation import evaluate
 
     if iteration is not None:
         _at_least("--iteration", iteration, 0)
@@ -659,7 +659,8 @@ def eval_cmd(
             (up, up_held), (down, down_held) = result.face_up[k], result.upside_down(k)
             held += f"  (started face up {up_held}/{up}, upside down {down_held}/{down})"
         if result.endings is not None and result.successes[k] < result.episodes[k]:
-            ends = [f"{e} {result.endings[e][k]}" for e in ENDINGS[1:] if result.endings[e][k]]
+            ends = [f"{e} {by[k]}" for e, by in result.endings.items()
+                    if e != "success" and by[k]]
             held += f"  failed: {', '.join(ends)}"
         click.echo(f"{name:<{width}}  {result.successes[k]}/{result.episodes[k]}{held}")
     click.echo(f"{'overall':<{width}}  {result.overall:.3f}")

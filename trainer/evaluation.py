@@ -71,8 +71,9 @@ class EvalResult:
     """Per object, the median distance (m) of the nearest pad at the success steps (None
     where no success)."""
     endings: dict[str, list[int]] | None = None
-    """Per ending (``ENDINGS``: success, never lifted, dropped, stalled, knocked off), per
-    object: the episodes that ended so (``EpisodeEndings``; None: not measured)."""
+    """Per ending (``ENDINGS``: success, never reached, never lifted, dropped, stalled, knocked
+    off; never reached only where the run has SDF grids to measure it), per object: the
+    episodes that ended so (``EpisodeEndings``; None: not measured)."""
     face_up: list[tuple[int, int]] | None = None
     """Per object, (episodes, successes) of the episodes whose target started face up: its
     mesh's up axis pointing up after the first action (lift; None: not measured). A plate
@@ -305,13 +306,14 @@ class EpisodeEndings:
     def on_reset(self, env: GraspTask, td: TensorDictBase) -> None:
         z = env.target_pose()[0][:, 2].cpu()
         self.start, self.top, self.last = z, z.clone(), z
-        self.reached = _in_reach(env)
+        self.reached = _in_reach(env)  # None: the run loads no SDF grids, nothing to measure
         self.parts.append(torch.full((env.num_envs,), -1, dtype=torch.long))
 
     def on_step(self, env: GraspTask, step: int, td: TensorDictBase) -> None:
         self.last = env.target_pose()[0][:, 2].cpu()
         self.top = torch.maximum(self.top, self.last)
-        self.reached |= _in_reach(env)
+        if self.reached is not None:
+            self.reached |= _in_reach(env)
 
     def on_episode(self, env: GraspTask, ended: torch.Tensor, success: torch.Tensor) -> None:
         ending = self.parts[-1]
@@ -333,16 +335,21 @@ class EpisodeEndings:
         return torch.cat(self.parts)
 
     def counts(self, episodes: Episodes, num_objects: int) -> dict[str, list[int]]:
-        """Per ending, per object: the episodes that ended so."""
+        """Per ending, per object: the episodes that ended so (without ``never reached`` where
+        the run has no SDF grids to measure it with)."""
         endings = self.endings()
-        return {name: torch.bincount(episodes.target[endings == k],
+        measured = [e for e in ENDINGS if e != "never reached" or self.reached is not None]
+        return {name: torch.bincount(episodes.target[endings == ENDINGS.index(name)],
                                      minlength=num_objects).tolist()
-                for k, name in enumerate(ENDINGS)}
+                for name in measured}
 
 
-def _in_reach(env: GraspTask) -> torch.Tensor:
+def _in_reach(env: GraspTask) -> torch.Tensor | None:
     """(E,) bool on the CPU: ``HELD_PADS`` or more fingertip pads within ``HELD_DISTANCE`` of
-    the target's surface now."""
+    the target's surface now; None where the run loads no SDF grids (a run with the
+    centre-of-mass reward and no hold test)."""
+    if env.objects.sdf is None:
+        return None
     pads = keypoint_distances(env)[:, 1:]
     return ((pads < HELD_DISTANCE).sum(-1) >= HELD_PADS).cpu()
 
@@ -475,10 +482,11 @@ def write_eval(run: RunDir, result: EvalResult, folder: str = "eval") -> None:
     if result.endings is not None:
         with atomic_path(out / "endings.csv") as tmp, open(tmp, "w", newline="") as handle:
             writer = csv.writer(handle)
-            writer.writerow(["object", "episodes", *(e.replace(" ", "_") for e in ENDINGS)])
+            writer.writerow(["object", "episodes",
+                             *(e.replace(" ", "_") for e in result.endings)])
             for k, name in enumerate(result.names):
                 writer.writerow([name, result.episodes[k],
-                                 *(result.endings[e][k] for e in ENDINGS)])
+                                 *(by_object[k] for by_object in result.endings.values())])
     task = [result.task, result.bin_objects or "", result.context, result.representation]
     pads = result.held is not None and result.nearest_pad is not None
     with atomic_path(out / "per_object.csv") as tmp, open(tmp, "w", newline="") as handle:
@@ -518,17 +526,19 @@ def write_eval(run: RunDir, result: EvalResult, folder: str = "eval") -> None:
             near_text = "—" if near is None else f"{100 * near:.1f} cm"
             lines.append(f"| {name} | {result.successes[k]} | {result.held[k]} | {near_text} |")
     if result.endings is not None:
-        lines += ["", f"How the episodes ended (never reached: {HELD_PADS} fingertip pads never "
-                  f"within {100 * HELD_DISTANCE:.0f} cm of the target together, and its centre "
-                  f"never rose {100 * LIFTED_RISE:.0f} cm; the target's centre: never lifted "
+        reach = ("" if "never reached" not in result.endings else
+                 f"never reached: {HELD_PADS} fingertip pads never within "
+                 f"{100 * HELD_DISTANCE:.0f} cm of the target together, and its centre never "
+                 f"rose {100 * LIFTED_RISE:.0f} cm; ")
+        lines += ["", f"How the episodes ended ({reach}the target's centre: never lifted "
                   f"{100 * LIFTED_RISE:.0f} cm, dropped {100 * DROP:.0f} cm below its highest, "
                   f"stalled up but short of success, knocked off {100 * KNOCKED_OFF:.0f} cm "
                   "below its start):", "",
-                  "| object | episodes | " + " | ".join(ENDINGS) + " |",
-                  "|---|---:|" + "---:|" * len(ENDINGS)]
+                  "| object | episodes | " + " | ".join(result.endings) + " |",
+                  "|---|---:|" + "---:|" * len(result.endings)]
         for k, name in enumerate(result.names):
             lines.append(f"| {name} | {result.episodes[k]} | "
-                         + " | ".join(str(result.endings[e][k]) for e in ENDINGS) + " |")
+                         + " | ".join(str(by[k]) for by in result.endings.values()) + " |")
     if result.short:
         lines += ["", f"Fewer episodes than asked after {result.rounds} rounds: "
                   f"{', '.join(result.short)}."]
