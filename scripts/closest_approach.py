@@ -5,9 +5,9 @@ the target's surface (m) over the failed episodes and over the successful ones, 
 height above the target's centre at that moment.
 
 A policy that finds an object and does not lift it shows here whether its hand closed from
-too far: results/cpu-comparison-2026-11-29/ (2026-11-30) measured the dice's failures of the
-arms that see no extent (com, sdf) with the palm 6-7 cm from its surface, where the arms that
-lift it come to 3.6-4.6 cm.
+too far: results/cpu-comparison-2026-11-29/ (2026-11-30) measured the arms that fail the dice
+closing on it with the palm 5.3-7.0 cm from its surface, where the arms that lift it come to
+3.8-4.7 cm.
 
     python scripts/closest_approach.py RUN_DIR [--objects A,B] [--episodes-per-object 50]
 """
