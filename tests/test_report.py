@@ -447,6 +447,34 @@ def test_machines_say_whether_minutes_compare(run_dirs: list[Path], tmp_path: Pa
     assert "`../runs/sq_s1`: iterations 1-10: not recorded" in text
 
 
+def test_machines_name_the_cpu_that_evaluated(run_dirs: list[Path], tmp_path: Path) -> None:
+    """table.md's last line (trainer eval's machine and code): one line where one CPU model
+    evaluated every run, each run's where they differ or one is not recorded."""
+    from trainer.evaluation import evaluated_line
+
+    evaluated = [p for p in run_dirs if (p / "eval" / "per_object.csv").is_file()]
+    assert len(evaluated) >= 2
+    for path in evaluated:
+        (path / "eval" / "table.md").write_text(
+            "| object | episodes | sq |\n\nEvaluated on AMD EPYC with code 0123abcd, "
+            "2026-11-30 07:46 UTC.\n")
+    run = report.load_run(evaluated[0])
+    assert run.eval_machine == ("AMD EPYC", "0123abcd")
+    out = tmp_path / "report"
+    report.write_report(run_dirs, out)
+    text = (out / "report.md").read_text()
+    assert "One CPU model evaluated every run: AMD EPYC (code 0123abcd)." in text
+    (evaluated[1] / "eval" / "table.md").write_text("| object | episodes | sq |\n")
+    report.write_report(run_dirs, out)
+    text = (out / "report.md").read_text()
+    assert "evaluations were made on more than one CPU model or on one not recorded" in text
+    assert f"`../runs/{evaluated[0].name}`: AMD EPYC (code 0123abcd)" in text
+    assert f"`../runs/{evaluated[1].name}`: not recorded" in text
+    # the line trainer eval writes reads back as its machine
+    (evaluated[1] / "eval" / "table.md").write_text(evaluated_line() + "\n")
+    assert report.load_run(evaluated[1]).eval_machine is not None
+
+
 @pytest.mark.parametrize("relative_args", [False, True])
 def test_report_names_runs_relative_to_its_directory(
     run_dirs: list[Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, relative_args: bool

@@ -30,7 +30,7 @@ from trainer.grasps.runner import keypoint_distances
 from trainer.report import task_label
 from trainer.session import EVAL_SEED, MAX_ENVS, Episodes, EvalSession
 from trainer.tasks import GraspTask
-from trainer.training.run_dir import BY_START_COLUMNS, RunDir
+from trainer.training.run_dir import BY_START_COLUMNS, EVALUATED_ON, RunDir
 
 MAX_ROUNDS = 20
 """Rounds of bin episodes at most (``trainer eval --max-rounds``)."""
@@ -397,16 +397,12 @@ class SuccessPads:
                 for k in range(num_objects)]
 
 
-EVALUATED = "Evaluated on "
-"""How table.md's last line starts: the machine and code that evaluated (``evaluated_line``)."""
-
-
 def evaluated_line() -> str:
     """The machine, code and time of an evaluation, for its table.md: the same checkpoint and
     seed end some contact-rich episodes differently on another CPU model (its floating point),
     though never on one machine (results/cpu-comparison-2026-11-29/, 2026-11-30)."""
     now = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
-    return f"{EVALUATED}{cpu_model()} with code {code_version()}, {now}."
+    return f"{EVALUATED_ON}{cpu_model()} with code {code_version()}, {now}."
 
 
 def _metres(value: float | None) -> str:

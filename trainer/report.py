@@ -53,7 +53,7 @@ import numpy as np
 from geomgrasp.files import atomic_path
 from trainer.config import ABSENT_MEANS
 from trainer.errors import TrainerError
-from trainer.training.run_dir import BY_START_COLUMNS, RunDir, read_launches
+from trainer.training.run_dir import BY_START_COLUMNS, EVALUATED_ON, RunDir, read_launches
 
 GroupKey = tuple[str, str, str, str]
 """(task, representation, reward kind, robot kind): task ``lift`` or ``binN``, representation
@@ -189,6 +189,9 @@ class Run:
     machines: tuple[tuple[int, str, str], ...] = ()
     """(first iteration, the machine in words, the code) per launch, from ``launches.csv``;
     empty for a run trained before the file existed."""
+    eval_machine: tuple[str, str] | None = None
+    """(CPU model, code) that made the evaluation (its table.md's last line); None where not
+    recorded (evaluations before 2026-11-30)."""
 
     @property
     def has_curriculum(self) -> bool:
@@ -255,7 +258,9 @@ def load_run(path: str | Path, eval_dir: str = "eval") -> Run:
         bin_objects=config["bin_objects"],
         context=config["context"],
         settings=config["settings"],
-        eval_criterion=_read_criterion(path / eval_dir / "table.md") if per_object else None,
+        eval_criterion=(_read_table_line(path / eval_dir / "table.md", "Success: ")
+                        if per_object else None),
+        eval_machine=_eval_machine(path / eval_dir / "table.md") if per_object else None,
         endings=_read_endings(path / eval_dir / "endings.csv") if per_object else None,
         by_start=_read_by_start(path / eval_dir / "by_start.csv") if per_object else None,
         machines=tuple((int(r["first_iteration"]), _machine_words(r), r["code"])
@@ -299,7 +304,32 @@ def machines_text(runs: Sequence[Run], out_dir: Path) -> list[str]:
         verdict = ("**Minutes and env steps/s compare only between runs on one machine**, and "
                    "these runs were trained on more than one or on machines not recorded "
                    "(`launches.csv` exists since 2026-11-30): compare the arms by env steps.")
-    return [verdict, "", *lines, ""]
+    return [verdict, "", *lines, "", *_evaluation_machines(runs, out_dir)]
+
+
+def _evaluation_machines(runs: Sequence[Run], out_dir: Path) -> list[str]:
+    """Which CPU models evaluated the runs (table.md's last line): one line where one did them
+    all, else each run's, since the same checkpoint and seed end some episodes differently on
+    another CPU model."""
+    evaluated = [r for r in runs if r.per_object is not None]
+    if not evaluated:
+        return []
+    cpus = {r.eval_machine[0] if r.eval_machine else None for r in evaluated}
+    if len(cpus) == 1 and None not in cpus:
+        codes = sorted({r.eval_machine[1] for r in evaluated if r.eval_machine})
+        return [f"One CPU model evaluated every run: {next(iter(cpus))} (code "
+                f"{', '.join(codes)}).", ""]
+    return [
+        "**The evaluations were made on more than one CPU model or on one not recorded** "
+        "(table.md's last line, since 2026-11-30): the same checkpoint and seed end some "
+        "contact-rich episodes differently on another CPU model (up to 5 of 50 per object, "
+        "0.016 overall: results/cpu-comparison-2026-11-29/), as another evaluation seed would.",
+        "",
+        *(f"- `{_relative_to(r.path, out_dir)}`: "
+          + (f"{r.eval_machine[0]} (code {r.eval_machine[1]})" if r.eval_machine
+             else "not recorded") for r in evaluated),
+        "",
+    ]
 
 
 def _read_endings(path: Path) -> dict[str, dict[str, int]] | None:
@@ -384,17 +414,27 @@ def _check_eval_dir(eval_dir: str) -> None:
         )
 
 
-def _read_criterion(path: Path) -> str | None:
-    """The ``Success: ...`` line that ``trainer eval`` writes into table.md, without the
-    prefix; None when there is no such file or line (evaluations before it stated one)."""
+def _read_table_line(path: Path, prefix: str) -> str | None:
+    """The line of ``trainer eval``'s table.md that starts with ``prefix``, without it: the
+    success criterion (``Success: ``), the machine that evaluated (``EVALUATED_ON``); None
+    when there is no such file or line (evaluations before it was written)."""
     try:
         lines = path.read_text().splitlines() if path.is_file() else []
     except (OSError, UnicodeDecodeError):
         return None
     for line in lines:
-        if line.startswith("Success: "):
-            return line.removeprefix("Success: ").strip()
+        if line.startswith(prefix):
+            return line.removeprefix(prefix).strip()
     return None
+
+
+def _eval_machine(table: Path) -> tuple[str, str] | None:
+    """(CPU model, code) of the evaluation whose table.md this is; None if not recorded."""
+    line = _read_table_line(table, EVALUATED_ON)
+    if line is None or " with code " not in line:
+        return None
+    cpu, rest = line.split(" with code ", 1)
+    return cpu, rest.split(",", 1)[0]
 
 
 def _read_config(path: Path) -> dict[str, Any]:

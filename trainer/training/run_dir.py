@@ -44,6 +44,11 @@ BY_START_COLUMNS = (
 evaluation folder, ``trainer report`` reads it): per object, the episodes whose target started
 face up and upside down, and their successes."""
 
+EVALUATED_ON = "Evaluated on "
+"""How the last line of an evaluation's ``table.md`` starts: ``Evaluated on CPU with code
+COMMIT, DATE.`` (``trainer eval`` writes it since 2026-11-30, ``trainer report`` reads it):
+the same checkpoint and seed end some contact-rich episodes differently on another CPU model."""
+
 GROWABLE = ("run.total_steps", "run.max_minutes")
 """The config keys a resumed run may change: it may only grow longer."""
 
