@@ -1,6 +1,6 @@
 """Whether two sets of reference runs (``scripts/reference_runs.sh``) measured the same: every
 metrics.csv column but the timings (``wall_time_s``, ``fps``), row for row, and the eval tables
-byte for byte.
+line for line (but table.md's machine line, ``Evaluated on ...``, and blank lines).
 
     python scripts/compare_runs.py NEW REFERENCE [--runs lift,bin,floating,starts,warmup]
 
@@ -13,6 +13,8 @@ import argparse
 import csv
 import sys
 from pathlib import Path
+
+from trainer.training.run_dir import EVALUATED_ON
 
 TIMINGS = ("wall_time_s", "fps")
 EVAL_FILES = ("eval/per_object.csv", "eval/table.md")
@@ -42,7 +44,7 @@ def _results(path: Path) -> list[str]:
     """An evaluation file's non-blank lines but table.md's machine, code and time
     (``Evaluated on ...``: like the timings, not a result)."""
     return [line for line in path.read_text().splitlines()
-            if line.strip() and not line.startswith("Evaluated on ")]
+            if line.strip() and not line.startswith(EVALUATED_ON)]
 
 
 def main(argv: list[str] | None = None) -> int:
