@@ -400,7 +400,8 @@ class SuccessPads:
 def evaluated_line() -> str:
     """The machine, code and time of an evaluation, for its table.md: the same checkpoint and
     seed end some contact-rich episodes differently on another CPU model (its floating point),
-    though never on one machine (results/cpu-comparison-2026-11-29/, 2026-11-30)."""
+    and the same episodes on one machine (13 runs checked: results/cpu-comparison-2026-11-29/,
+    2026-11-30)."""
     now = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     return f"{EVALUATED_ON}{cpu_model()} with code {code_version()}, {now}."
 
