@@ -20,10 +20,8 @@ from pathlib import Path
 
 import click
 
-from trainer.evaluation import ENDINGS as ENDING_NAMES
-
-ENDINGS = tuple(name.replace(" ", "_") for name in ENDING_NAMES)
-"""endings.csv's columns, as ``trainer eval`` writes them."""
+from trainer.evaluation import ENDINGS
+from trainer.report import comparable_endings
 
 
 def read_eval(folder: Path) -> tuple[dict[str, tuple[int, int]], dict[str, int]]:
@@ -40,8 +38,9 @@ def read_eval(folder: Path) -> tuple[dict[str, tuple[int, int]], dict[str, int]]
     if (folder / "endings.csv").is_file():
         for row in csv.DictReader((folder / "endings.csv").open()):
             for ending in ENDINGS:
-                if ending in row:  # never_reached: recorded since 2026-11-30
-                    endings[ending] = endings.get(ending, 0) + int(row[ending])
+                column = ending.replace(" ", "_")  # (endings.csv's column names)
+                if column in row:  # never_reached: recorded since 2026-11-30
+                    endings[ending] = endings.get(ending, 0) + int(row[column])
     return rates, endings
 
 
@@ -73,13 +72,11 @@ def main(evals: tuple[Path, ...]) -> None:
     if len(evals) < 2:
         raise click.UsageError("pass BASE_EVAL and at least one OTHER_EVAL")
     read = [read_eval(folder) for folder in evals]
-    if not all("never_reached" in endings for _, endings in read if endings):
-        for _, endings in read:  # an evaluation from before 2026-11-30: as it counted them
-            if "never_reached" in endings:
-                endings["never_lifted"] += endings.pop("never_reached")
+    if all(endings for _, endings in read):  # (one without endings.csv: no column kept)
+        read = [(rates, dict(endings)) for (rates, _), endings
+                in zip(read, comparable_endings([e for _, e in read]), strict=True)]
     kept = [e for e in ENDINGS if all(e in endings for _, endings in read)]
-    click.echo("| evaluation | episodes | held | " + " | ".join(e.replace("_", " ") for e in
-                                                              kept[1:]) + " |")
+    click.echo("| evaluation | episodes | held | " + " | ".join(kept[1:]) + " |")
     click.echo("|---|---:|---:|" + "---:|" * len(kept[1:]))
     for folder, (rates, endings) in zip(evals, read, strict=True):
         episodes = sum(n for n, _ in rates.values())

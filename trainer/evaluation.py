@@ -30,7 +30,7 @@ from trainer.grasps.runner import keypoint_distances
 from trainer.report import task_label
 from trainer.session import EVAL_SEED, MAX_ENVS, Episodes, EvalSession
 from trainer.tasks import GraspTask
-from trainer.training.run_dir import BY_START_COLUMNS, EVALUATED_ON, RunDir
+from trainer.training.run_dir import BY_START_COLUMNS, RunDir, evaluated_on
 
 MAX_ROUNDS = 20
 """Rounds of bin episodes at most (``trainer eval --max-rounds``)."""
@@ -403,7 +403,7 @@ def evaluated_line() -> str:
     and the same episodes on one machine (13 runs checked: results/cpu-comparison-2026-11-29/,
     2026-11-30)."""
     now = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
-    return f"{EVALUATED_ON}{cpu_model()} with code {code_version()}, {now}."
+    return evaluated_on(cpu_model(), code_version(), now)
 
 
 def _metres(value: float | None) -> str:

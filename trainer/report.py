@@ -43,7 +43,7 @@ import os
 import re
 import shlex
 from collections import Counter
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
@@ -53,7 +53,12 @@ import numpy as np
 from geomgrasp.files import atomic_path
 from trainer.config import ABSENT_MEANS
 from trainer.errors import TrainerError
-from trainer.training.run_dir import BY_START_COLUMNS, EVALUATED_ON, RunDir, read_launches
+from trainer.training.run_dir import (
+    BY_START_COLUMNS,
+    RunDir,
+    read_evaluated_on,
+    read_launches,
+)
 
 GroupKey = tuple[str, str, str, str]
 """(task, representation, reward kind, robot kind): task ``lift`` or ``binN``, representation
@@ -242,6 +247,7 @@ def load_run(path: str | Path, eval_dir: str = "eval") -> Run:
     env_steps, wall_time_s, success_rate, h_bar, target_rate = _read_metrics(run.metrics)
     per_object_path = path / eval_dir / "per_object.csv"
     per_object = _read_per_object(per_object_path) if per_object_path.is_file() else None
+    table = _read_lines(path / eval_dir / "table.md") if per_object else []
     return Run(
         path=path,
         representation=config["representation"],
@@ -258,9 +264,8 @@ def load_run(path: str | Path, eval_dir: str = "eval") -> Run:
         bin_objects=config["bin_objects"],
         context=config["context"],
         settings=config["settings"],
-        eval_criterion=(_read_table_line(path / eval_dir / "table.md", "Success: ")
-                        if per_object else None),
-        eval_machine=_eval_machine(path / eval_dir / "table.md") if per_object else None,
+        eval_criterion=_criterion(table) if per_object else None,
+        eval_machine=_eval_machine(table) if per_object else None,
         endings=_read_endings(path / eval_dir / "endings.csv") if per_object else None,
         by_start=_read_by_start(path / eval_dir / "by_start.csv") if per_object else None,
         machines=tuple((int(r["first_iteration"]), _machine_words(r), r["code"])
@@ -414,27 +419,25 @@ def _check_eval_dir(eval_dir: str) -> None:
         )
 
 
-def _read_table_line(path: Path, prefix: str) -> str | None:
-    """The line of ``trainer eval``'s table.md that starts with ``prefix``, without it: the
-    success criterion (``Success: ``), the machine that evaluated (``EVALUATED_ON``); None
-    when there is no such file or line (evaluations before it was written)."""
+def _read_lines(path: Path) -> list[str]:
+    """The lines of ``trainer eval``'s table.md; none where it is absent or unreadable."""
     try:
-        lines = path.read_text().splitlines() if path.is_file() else []
+        return path.read_text().splitlines() if path.is_file() else []
     except (OSError, UnicodeDecodeError):
-        return None
-    for line in lines:
-        if line.startswith(prefix):
-            return line.removeprefix(prefix).strip()
-    return None
+        return []
 
 
-def _eval_machine(table: Path) -> tuple[str, str] | None:
-    """(CPU model, code) of the evaluation whose table.md this is; None if not recorded."""
-    line = _read_table_line(table, EVALUATED_ON)
-    if line is None or " with code " not in line:
-        return None
-    cpu, rest = line.split(" with code ", 1)
-    return cpu, rest.split(",", 1)[0]
+def _criterion(table: list[str]) -> str | None:
+    """The success criterion of table.md's ``Success: ...`` line; None where it has none
+    (evaluations before it stated one)."""
+    return next((line.removeprefix("Success: ").strip() for line in table
+                 if line.startswith("Success: ")), None)
+
+
+def _eval_machine(table: list[str]) -> tuple[str, str] | None:
+    """(CPU model, code) of the evaluation whose table.md lines these are; None if not
+    recorded (evaluations before 2026-11-30)."""
+    return next((found for line in table if (found := read_evaluated_on(line))), None)
 
 
 def _read_config(path: Path) -> dict[str, Any]:
@@ -1223,6 +1226,20 @@ def allowing_differences(runs: list[Run], allow_differ: Sequence[str]) -> list[R
     ]
 
 
+def comparable_endings(endings: Sequence[Mapping[str, int]]) -> list[Counter[str]]:
+    """Episodes by ending (``trainer eval``'s names, spaces and all), one mapping per
+    evaluation, counted alike: an evaluation from before 2026-11-30 counted never reached as
+    never lifted, so where any lacks never reached, every one's is folded into never lifted."""
+    fold = not all("never reached" in by for by in endings)
+    out = []
+    for by_ending in endings:
+        by = Counter(by_ending)
+        if fold and "never reached" in by:
+            by["never lifted"] += by.pop("never reached")
+        out.append(by)
+    return out
+
+
 def worst_objects_table(runs: Sequence[Run], count: int = WORST) -> str:
     """Per arm whose evaluations recorded how episodes ended: its ``count`` objects of lowest
     success (episodes pooled over the seeds), each with its episodes by ending, worst first.
@@ -1233,16 +1250,11 @@ def worst_objects_table(runs: Sequence[Run], count: int = WORST) -> str:
         ended = [r for r in members if r.endings is not None and r.per_object is not None]
         if not ended:
             continue
-        # an evaluation from before 2026-11-30 counted never reached as never lifted: beside
-        # one, the others' never reached are folded back (the arm's episodes counted alike)
-        fold = not all("never reached" in by for r in ended for by in r.endings.values())
+        names = [name for r in ended for name in r.endings]
+        counted = comparable_endings([by for r in ended for by in r.endings.values()])
         totals: dict[str, Counter[str]] = {}
-        for run in ended:
-            for name, by_ending in run.endings.items():
-                by = Counter(by_ending)
-                if fold and "never reached" in by:
-                    by["never lifted"] += by.pop("never reached")
-                totals.setdefault(name, Counter()).update(by)
+        for name, by in zip(names, counted, strict=True):
+            totals.setdefault(name, Counter()).update(by)
         endings = list(dict.fromkeys(e for by in totals.values() for e in by))
         episodes = {name: sum(by.values()) for name, by in totals.items()}
         rate = {name: by.get("success", 0) / max(1, episodes[name])

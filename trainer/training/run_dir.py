@@ -49,6 +49,19 @@ EVALUATED_ON = "Evaluated on "
 COMMIT, DATE.`` (``trainer eval`` writes it since 2026-11-30, ``trainer report`` reads it):
 the same checkpoint and seed end some contact-rich episodes differently on another CPU model."""
 
+
+def evaluated_on(cpu: str, code: str, when: str) -> str:
+    """table.md's last line: the CPU model and code that evaluated, and when."""
+    return f"{EVALUATED_ON}{cpu} with code {code}, {when}."
+
+
+def read_evaluated_on(line: str) -> tuple[str, str] | None:
+    """(CPU model, code) from a line ``evaluated_on`` wrote; None for any other line."""
+    if not line.startswith(EVALUATED_ON) or " with code " not in line:
+        return None
+    cpu, rest = line.removeprefix(EVALUATED_ON).split(" with code ", 1)
+    return cpu, rest.split(",", 1)[0]
+
 GROWABLE = ("run.total_steps", "run.max_minutes")
 """The config keys a resumed run may change: it may only grow longer."""
 
