@@ -272,8 +272,8 @@ def dice_mug(builtin_data: Config, tmp_path_factory: pytest.TempPathFactory) -> 
 
 def test_closest_approach_keeps_each_episodes_nearest_palm(dice_mug: Path) -> None:
     """scripts/closest_approach.py: per env the nearest palm distance over the steps and the
-    palm's height above the centre at that step (not at another); on a tiny run one row per
-    object whose episodes and successes are trainer eval's."""
+    palm's height above the centre at that step (not at another), the pads' placement at their
+    closest; on a tiny run one row per object whose episodes and successes are trainer eval's."""
     import torch
 
     from trainer.evaluation import evaluate
@@ -287,10 +287,31 @@ def test_closest_approach_keeps_each_episodes_nearest_palm(dice_mug: Path) -> No
     assert distance.tolist() == pytest.approx([0.03, 0.02])
     assert above.tolist() == pytest.approx([0.06, 0.03])
 
+    # Pads: counted at the step of their smallest summed distance, not at a later one; a pad
+    # 1 cm or more away is not touching; a touching pad is on top where the normal points up.
+    placement = ca.PadPlacement()
+    placement.parts.append((torch.full((1,), float("inf")), torch.zeros(1), torch.zeros(1)))
+    up, side = torch.tensor([[0.9, 0.0, 0.9, 0.0, -1.0]]), torch.zeros(1, 5)
+    placement.update(torch.tensor([[0.0, 0.005, -0.002, 0.02, 0.001]]), up)  # sum 0.026
+    placement.update(torch.tensor([[0.05, 0.05, 0.0, 0.0, 0.0]]), side)  # sum 0.1: not kept
+    pad_sum, on_top, on_side = placement.results()
+    assert pad_sum.tolist() == pytest.approx([0.026])
+    assert on_top.tolist() == [2.0] and on_side.tolist() == [2.0]
+    placement.update(torch.tensor([[0.0, 0.0, 0.0, 0.009, 0.03]]), side)  # sum 0.039: not kept
+    placement.update(torch.tensor([[0.0, 0.0, 0.0, 0.009, 0.01]]), side)  # sum 0.019: kept
+    assert [float(part[0]) for part in placement.results()] == pytest.approx([0.019, 0, 4])
+
     result = evaluate(dice_mug, episodes_per_object=3, out="eval-approach")
     lines = ca.main([str(dice_mug), "--episodes-per-object", "3"])
-    assert len(lines) == 2 + 2 and lines[0].startswith("| object | episodes | successes |")
-    for k, line in enumerate(lines[2:]):
+    assert len(lines) == 2 + 2 + 1 + 2 + 2
+    assert lines[0].startswith("| object | episodes | successes |") and lines[4] == ""
+    for line in lines[7:]:  # the pads' table: a sum >= 0, at most 5 pads on top and sides
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        for pad_sum, top, side in (cells[1:4], cells[4:7]):
+            assert pad_sum == top == side == "—" or (
+                float(pad_sum) >= 0 and 0 <= float(top) + float(side) <= 5)
+        assert cells[1] != "—" or cells[4] != "—"
+    for k, line in enumerate(lines[2:4]):
         cells = [c.strip() for c in line.strip("|").split("|")]
         assert cells[0] == result.names[k] and int(cells[1]) == 3
         assert int(cells[2]) == result.successes[k]
