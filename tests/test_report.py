@@ -312,6 +312,38 @@ def test_rank_correlation_on_a_known_ordering(tmp_path: Path) -> None:
     assert "needs at least two" in report.ranking_text(one)
 
 
+def test_seeds_settle_only_separated_arms_with_two_seeds(tmp_path: Path) -> None:
+    """An arm is settled above another only where every seed of it is above every seed of the
+    other, each with two seeds; overlapping seeds and one-seed arms are not settled, and the
+    ranking sentence says which of the pairs that disagree with the paper the seeds settle."""
+    assert report.settled([0.8, 0.9], [0.6, 0.7])
+    assert not report.settled([0.8, 0.9], [0.6, 0.85])  # overlap
+    assert not report.settled([0.9], [0.1, 0.2])  # one seed
+    assert not report.settled([0.8, 0.9], [0.8, 0.7])  # equal is not above
+
+    def plate(rep: str, seed: int, held: int) -> Path:
+        return _write_run(tmp_path, rep, seed, 30, [0.1], {"029_plate": (10, held)})
+
+    dirs = [plate("pc32", 0, 9), plate("pc32", 1, 8),  # the paper's plate: pc32 0.50 last
+            plate("bbox", 0, 6), plate("bbox", 1, 7),  # bbox 0.93
+            plate("sq", 0, 5), plate("sq", 1, 9),  # sq 0.95: overlaps bbox and pc32
+            plate("com", 0, 10)]  # com 0.74, one seed
+    runs = [report.load_run(d) for d in dirs]
+    lines = report.seeds_table(runs).splitlines()
+    assert lines[0].startswith("| arm | seeds | overall per seed | settled above |")
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.strip("|").split("|")]
+            for line in lines[2:]}
+    assert [line.split("|")[1].strip() for line in lines[2:]] == ["com", "pc32", "sq", "bbox"]
+    assert rows["pc32"][1:] == ["2", "0.900, 0.800", "bbox", "sq"]
+    assert rows["bbox"][3:] == ["—", "sq"] and rows["sq"][3:] == ["—", "pc32, bbox"]
+    assert rows["com"][1:] == ["1", "1.000", "—", "—"]
+    text = report.ranking_text(report.paper_ranking(runs))
+    assert "disagree on 4 (ours com > bbox, com > sq, pc32 > bbox, pc32 > sq;" in text
+    assert "our seeds settle 1 (pc32 > bbox)" in text
+    assert "## Which differences the seeds settle" in report.write_report(dirs, tmp_path / "r")[
+        -1].read_text()
+
+
 def test_group_labels_name_reward_and_robot_when_they_differ(runs: list[report.Run]) -> None:
     assert list(report.group_labels(runs).values()) == ["com", "sq"]
     other = report.Run(

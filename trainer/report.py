@@ -914,6 +914,8 @@ class Ranking:
     basis: str
     left_out: tuple[str, ...] = ()
     """Representations in several groups (e.g. split by a setting), not ranked."""
+    seeds: tuple[tuple[float, ...], ...] = ()
+    """Per arm (``arms``' order), the overall success of each evaluated seed (``settled``)."""
 
 
 def paper_ranking(runs: Sequence[Run]) -> Ranking:
@@ -924,10 +926,11 @@ def paper_ranking(runs: Sequence[Run]) -> Ranking:
         if arm is not None and overall_success(members):
             by_arm.setdefault(arm, []).append(members)
     arms = tuple(a for a in PAPER_ORDER if len(by_arm.get(a, ())) == 1)
-    ours, paper, bases = [], [], set()
+    ours, paper, bases, seeds = [], [], set(), []
     for arm in arms:
         members = by_arm[arm][0]
-        ours.append(float(np.mean(overall_success(members))))
+        seeds.append(tuple(overall_success(members)))
+        ours.append(float(np.mean(seeds[-1])))
         value, basis = paper_overall(arm, set().union(*_seed_rates(members)))
         paper.append(value)
         bases.add(basis)
@@ -935,6 +938,7 @@ def paper_ranking(runs: Sequence[Run]) -> Ranking:
         arms=arms, ours=tuple(ours), paper=tuple(paper), rho=spearman(ours, paper),
         basis=" / ".join(sorted(bases)),
         left_out=tuple(a for a in PAPER_ORDER if len(by_arm.get(a, ())) > 1),
+        seeds=tuple(seeds),
     )
 
 
@@ -961,7 +965,8 @@ def ranking_text(ranking: Ranking) -> str:
             f"(lift, SDF reward) evaluated; here {have}.{left}"
         )
     rho = "undefined (all tied on one side)" if math.isnan(ranking.rho) else f"{ranking.rho:+.2f}"
-    agree, disagree, tied = [], [], []
+    agree, disagree, tied, settled_disagree = [], [], [], []
+    seeds = ranking.seeds or tuple((v,) for v in ranking.ours)
     for i in range(len(ranking.arms)):
         for j in range(i + 1, len(ranking.arms)):
             a, b = ranking.arms[i], ranking.arms[j]
@@ -976,6 +981,9 @@ def ranking_text(ranking: Ranking) -> str:
                 agree.append(f"{a} > {b}" if ours > 0 else f"{b} > {a}")
             else:
                 disagree.append(f"{a} > {b}" if ours > 0 else f"{b} > {a}")
+                high, low = (i, j) if ours > 0 else (j, i)
+                if settled(seeds[high], seeds[low]):
+                    settled_disagree.append(disagree[-1])
     pairs = len(ranking.arms) * (len(ranking.arms) - 1) // 2
     text = (
         f"Spearman's rank correlation of our ordering of the {len(ranking.arms)} representations "
@@ -988,7 +996,44 @@ def ranking_text(ranking: Ranking) -> str:
     text += f" and disagree on {len(disagree)}"
     text += f" (ours {', '.join(disagree)}; the paper's the reverse)" if disagree else ""
     text += f"; tied: {', '.join(tied)}." if tied else "."
+    if disagree:
+        text += (
+            f" Of the pairs that disagree, our seeds settle {len(settled_disagree)}"
+            + (f" ({', '.join(settled_disagree)})" if settled_disagree else "")
+            + " (every seed of the one above every seed of the other, two seeds or more "
+            "each); the others are inside the seed spread or rest on one seed."
+        )
     return text + left
+
+
+def settled(higher: Sequence[float], lower: Sequence[float]) -> bool:
+    """Whether the seeds settle that one arm is above another: both evaluated with two seeds or
+    more, and every seed of ``higher`` above every seed of ``lower`` (overall success)."""
+    return len(higher) >= 2 and len(lower) >= 2 and min(higher) > max(lower)
+
+
+def seeds_table(runs: Sequence[Run]) -> str:
+    """Per evaluated arm, best mean first: its overall success per seed, the arms the seeds
+    settle it above (``settled``), and those whose seeds overlap with its own (a difference
+    inside the seed spread) or that have one seed (cannot be settled yet)."""
+    labels = group_labels(runs)
+    overall = {labels[k]: overall_success(m) for k, m in group_runs(runs).items()}
+    overall = {label: rates for label, rates in overall.items() if rates}
+    order = sorted(overall, key=lambda label: -float(np.mean(overall[label])))
+    lines = ["| arm | seeds | overall per seed | settled above | seeds overlap with |",
+             "|---|---:|---|---|---|"]
+    for label in order:
+        mine = overall[label]
+        above = [o for o in order if o != label and settled(mine, overall[o])]
+        overlap = [
+            o for o in order
+            if o != label and not settled(mine, overall[o]) and not settled(overall[o], mine)
+            and len(mine) >= 2 and len(overall[o]) >= 2
+        ]
+        per_seed = ", ".join(f"{rate:.3f}" for rate in mine)
+        lines.append(f"| {label} | {len(mine)} | {per_seed} | {', '.join(above) or _DASH} | "
+                     f"{', '.join(overlap) or _DASH} |")
+    return "\n".join(lines) + "\n"
 
 
 # ---------------------------------------------------------------------------------------- plots
@@ -1322,8 +1367,9 @@ def write_report(
     ``curriculum.png`` for runs with a lift curriculum, ``gain_<other>_over_<base>.png`` when
     ``compare = (base, other)`` is given (group labels or representation names), and
     ``report.md``: the command that made it, Table I (``per_object_table``) when any run has
-    eval data, the ranking against the paper (``paper_ranking``), Table II (``summary_table``
-    at ``thresholds``, with env steps per second), the plots, and the list of runs. Every path
+    eval data, the ranking against the paper (``paper_ranking``), the differences the seeds
+    settle (``seeds_table``), Table II (``summary_table`` at ``thresholds``, with env steps per
+    second), the plots, and the list of runs. Every path
     in it is relative (runs relative to ``out_dir``, the command's to the directory it ran in).
     Every file is written atomically; returns the written paths, report.md last."""
     if not run_dirs:
@@ -1389,6 +1435,14 @@ def write_report(
                 "(mean over seeds), and the face-up share of its episodes.", "", upside_down,
             ]
         parts += ["## Ranking against the paper", "", ranking_text(paper_ranking(runs)), ""]
+        parts += [
+            "## Which differences the seeds settle", "",
+            "Per arm, best mean first: the overall success of each evaluated seed (Table I's "
+            "mean over objects); an arm is settled above another where every seed of it is "
+            "above every seed of the other, both with two seeds or more. Where their seeds "
+            "overlap, the difference is inside the seed spread; an arm with one seed is "
+            "settled against none.", "", seeds_table(runs),
+        ]
         worst = worst_objects_table(runs, worst_count)
         if worst:
             parts += [f"## The {worst_count} worst objects of each arm and how their episodes "
