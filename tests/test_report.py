@@ -329,7 +329,7 @@ def test_seeds_settle_only_separated_arms_with_two_seeds(tmp_path: Path) -> None
             plate("sq", 0, 5), plate("sq", 1, 9),  # sq 0.95: overlaps bbox and pc32
             plate("com", 0, 10)]  # com 0.74, one seed
     runs = [report.load_run(d) for d in dirs]
-    lines = report.seeds_table(runs).splitlines()
+    lines = [line for line in report.seeds_table(runs).splitlines() if line.startswith("|")]
     assert lines[0].startswith("| arm | seeds | overall per seed | settled above |")
     rows = {line.split("|")[1].strip(): [c.strip() for c in line.strip("|").split("|")]
             for line in lines[2:]}
@@ -337,6 +337,14 @@ def test_seeds_settle_only_separated_arms_with_two_seeds(tmp_path: Path) -> None
     assert rows["pc32"][1:] == ["2", "0.900, 0.800", "bbox", "sq"]
     assert rows["bbox"][3:] == ["—", "sq"] and rows["sq"][3:] == ["—", "pc32, bbox"]
     assert rows["com"][1:] == ["1", "1.000", "—", "—"]
+    # Within: pc32 (0.9, 0.8), bbox (0.6, 0.7), sq (0.5, 0.9): sums of squares 0.005 + 0.005 +
+    # 0.08 over 3 degrees of freedom; between: the means 0.85, 0.65, 0.7 (com has one seed).
+    within, between, arms = report.seed_and_arm_spread([[0.9, 0.8], [0.6, 0.7], [0.5, 0.9], [1]])
+    assert within == pytest.approx(math.sqrt(0.09 / 3)) and arms == 3
+    assert between == pytest.approx(float(np.std([0.85, 0.65, 0.7], ddof=1)))
+    assert report.seed_and_arm_spread([[0.9, 0.8], [1.0]]) is None
+    assert f"seeds of one arm spread by {within:.3f}" in report.seeds_table(runs)
+    assert f"would spread by about {within / math.sqrt(2):.3f}." in report.seeds_table(runs)
     text = report.ranking_text(report.paper_ranking(runs))
     assert "disagree on 4 (ours com > bbox, com > sq, pc32 > bbox, pc32 > sq;" in text
     assert "our seeds settle 1 (pc32 > bbox)" in text

@@ -1033,7 +1033,31 @@ def seeds_table(runs: Sequence[Run]) -> str:
         per_seed = ", ".join(f"{rate:.3f}" for rate in mine)
         lines.append(f"| {label} | {len(mine)} | {per_seed} | {', '.join(above) or _DASH} | "
                      f"{', '.join(overlap) or _DASH} |")
+    counts = [len(rates) for rates in overall.values() if len(rates) >= 2]
+    spread = seed_and_arm_spread(list(overall.values()))
+    if spread is not None:
+        within, between, arms = spread
+        # Were the arms alike, their means would spread by the seeds' std over sqrt(seeds).
+        alike = within * math.sqrt(sum(1 / n for n in counts) / len(counts))
+        lines += ["", f"Over the {arms} arms with two seeds or more: the seeds of one arm spread "
+                  f"by {within:.3f} (pooled std, ddof 1), the arms' means by {between:.3f} (std "
+                  f"of the means, ddof 1); were the arms alike, their means would spread by "
+                  f"about {alike:.3f}."]
     return "\n".join(lines) + "\n"
+
+
+def seed_and_arm_spread(
+    arms: Sequence[Sequence[float]],
+) -> tuple[float, float, int] | None:
+    """(pooled within-arm std of the seeds, std of the arms' means, number of arms) over the
+    arms with two seeds or more (ddof 1 both); None for fewer than two such arms."""
+    kept = [np.asarray(a, dtype=np.float64) for a in arms if len(a) >= 2]
+    if len(kept) < 2:
+        return None
+    dof = sum(a.size - 1 for a in kept)
+    within = math.sqrt(sum(float(((a - a.mean()) ** 2).sum()) for a in kept) / dof)
+    between = float(np.std([a.mean() for a in kept], ddof=1))
+    return within, between, len(kept)
 
 
 # ---------------------------------------------------------------------------------------- plots
