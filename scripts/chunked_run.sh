@@ -15,7 +15,9 @@
 # objects into eval-bin10/ and on bins of its own size it never trained on into eval-new/. With VIDEO_OBJECT set, each chunk also films the policy's picks of
 # that object (the successes first) into RESULTS_DIR/media/NAME-<env steps>M.mp4. Stop a chunk
 # early with SIGTERM to its `trainer run` (it checkpoints); rerun to copy back and continue.
-# Environment: DATA_DIR (data), RUNS_DIR (runs).
+# Environment: DATA_DIR (data), RUNS_DIR (runs), STEPS (a resumed run's total env steps, to
+# extend its budget: `trainer run --resume --steps`; a run evaluated at its old budget is
+# refused: extend a copy without its eval/).
 #
 #   nohup scripts/chunked_run.sh results/cpu-bin-table1-2026-11-29 bin5-table1-lift \
 #       results/cpu-bin-table1-2026-11-29/bin5-table1-lift.toml 120 480 > logs/bin-lift.log 2>&1 &
@@ -34,12 +36,15 @@ SAVED=$HERE/runs/$NAME
 if [ ! -f "$SAVED/checkpoints/last.pt" ] && [ ! -f "$RUN/checkpoints/last.pt" ] && [ ! -f "$CONFIG" ]; then
   echo "$CONFIG: no such config, and no run $NAME to continue" >&2; exit 2
 fi
+if [ -n "${STEPS:-}" ] && { [ -d "$SAVED/eval" ] || [ -d "$RUN/eval" ]; }; then
+  echo "$NAME: STEPS extends a run whose eval/ is of its old budget: extend a copy without eval/" >&2; exit 2
+fi
 if [ ! -d "$RUN" ] && [ -f "$SAVED/checkpoints/last.pt" ]; then
   mkdir -p "$(dirname "$RUN")" && cp -r "$SAVED" "$RUN"
 fi
 echo "== $NAME: $(date -u +%FT%TZ)"
 if [ -f "$RUN/checkpoints/last.pt" ]; then
-  trainer run --resume "$RUN" --minutes "$MINUTES"
+  trainer run --resume "$RUN" --minutes "$MINUTES" ${STEPS:+--steps "$STEPS"}
 else
   trainer run --config "$CONFIG" --data-dir "${DATA_DIR:-data}" --run-dir "$RUN" --minutes "$MINUTES" "$@"
 fi

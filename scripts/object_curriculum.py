@@ -5,6 +5,13 @@ on). Writes a CSV (iteration, env_steps, minutes, then ``<object>`` targets in m
 ``<object>_held`` rates) and plots the targets over env steps.
 
     python scripts/object_curriculum.py RUN_DIR [--csv FILE] [--png FILE]
+    python scripts/object_curriculum.py RUN_DIR... --final [--objects A,B]
+
+``--final`` writes nothing: for each run its last checkpoint's target and held rate per object
+beside the run's ``trainer eval`` successes (``eval/per_object.csv``), then the (run, object)
+pairs grouped by where their target ended (still on the first rung, between, at the task's
+h_bar) with their evaluation: results/cpu-comparison-2026-11-29/ (2026-11-30) found the hard
+objects evaluated at 0.2 m by whether training had moved them off the first rung.
 
 (``trainer report`` plots the run's mean target from metrics.csv; this is the per-object view,
 e.g. results/cpu-table1-together-2026-11-26/.)
@@ -14,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import statistics
 from pathlib import Path
 
 
@@ -55,6 +63,62 @@ def rows_of(run_dir: Path) -> tuple[list[str], list[dict[str, float]]]:
     return names, [out[i] for i in sorted(out)]
 
 
+def final_rows(run_dirs: list[Path], objects: list[str] | None = None) -> list[dict]:
+    """Per run and object (the run's, or ``objects``): the last checkpoint's target (m) and held
+    rate at it, the first rung's target (``reward.h_bar_start``), the task's ``h_bar``, and the
+    evaluation's successes and episodes (``eval/per_object.csv``; None where not evaluated)."""
+    from trainer.errors import TrainerError
+    from trainer.training.run_dir import RunDir
+
+    out = []
+    for run_dir in run_dirs:
+        names, rows = rows_of(run_dir)
+        reward = RunDir(run_dir).load_config().env.reward
+        evaluated: dict[str, tuple[int, int]] = {}
+        per_object = run_dir / "eval" / "per_object.csv"
+        if per_object.is_file():
+            with open(per_object, newline="") as handle:
+                evaluated = {r["object"]: (int(r["successes"]), int(r["episodes"]))
+                             for r in csv.DictReader(handle)}
+        for name in objects or names:
+            if name not in names:
+                raise TrainerError(f"{run_dir}: no object {name!r}; its objects: "
+                                   f"{', '.join(names)}")
+            successes, episodes = evaluated.get(name, (None, None))
+            out.append({"run": run_dir, "object": name, "target": rows[-1][name],
+                        "held": rows[-1][f"{name}_held"], "start": reward.h_bar_start,
+                        "h_bar": reward.h_bar, "successes": successes, "episodes": episodes})
+    return out
+
+
+def rung(row: dict) -> str:
+    """Where a (run, object) pair's target ended: ``first rung``, ``between`` or ``at h_bar``
+    (1 mm tolerance: targets are stored as float32)."""
+    if row["target"] <= row["start"] + 1e-3:
+        return "first rung"
+    return "at h_bar" if row["target"] >= row["h_bar"] - 1e-3 else "between"
+
+
+def final_table(rows: list[dict]) -> list[str]:
+    """The markdown lines of ``--final``: one row per (run, object), a blank line, the summary
+    by ``rung`` (evaluated pairs only: their count, the median and range of the successes)."""
+    lines = ["| run | object | target (m) | held at target | eval successes |",
+             "|---|---|---:|---:|---:|"]
+    for r in rows:
+        ev = "—" if r["successes"] is None else f"{r['successes']}/{r['episodes']}"
+        lines.append(f"| {r['run'].name} | {r['object']} | {r['target']:.2f} | "
+                     f"{r['held']:.2f} | {ev} |")
+    lines += ["", "| target at the end | (run, object) pairs | eval successes: median (range) |",
+              "|---|---:|---|"]
+    for where in ("first rung", "between", "at h_bar"):
+        got = sorted(r["successes"] for r in rows
+                     if rung(r) == where and r["successes"] is not None)
+        if got:
+            lines.append(f"| {where} | {len(got)} | {statistics.median(got):g} "
+                         f"({got[0]}-{got[-1]}) |")
+    return lines
+
+
 def plot(names: list[str], rows: list[dict[str, float]], png: Path) -> None:
     from trainer.report import _pyplot, _save
 
@@ -70,14 +134,28 @@ def plot(names: list[str], rows: list[dict[str, float]], png: Path) -> None:
     _save(fig, png)
 
 
-def main(argv: list[str] | None = None) -> list[dict[str, float]]:
+def main(argv: list[str] | None = None) -> list[dict[str, float]] | list[str]:
     from trainer.errors import TrainerError
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("run_dir", type=Path)
+    parser.add_argument("run_dir", type=Path, nargs="+")
     parser.add_argument("--csv", type=Path, default=None, help="default: RUN_DIR/curriculum.csv")
     parser.add_argument("--png", type=Path, default=None, help="default: beside the CSV")
+    parser.add_argument("--final", action="store_true",
+                        help="the last targets beside the evaluation, over the runs given")
+    parser.add_argument("--objects", default=None, help="with --final: comma-separated")
     args = parser.parse_args(argv)
+    if args.final:
+        objects = args.objects.split(",") if args.objects else None
+        try:
+            lines = final_table(final_rows(args.run_dir, objects))
+        except TrainerError as exc:
+            raise SystemExit(f"object_curriculum: {exc}") from None
+        print("\n".join(lines))
+        return lines
+    if len(args.run_dir) > 1 or args.objects:
+        parser.error("several runs and --objects go with --final")
+    args.run_dir = args.run_dir[0]
     try:
         names, rows = rows_of(args.run_dir)
     except TrainerError as exc:

@@ -32,10 +32,12 @@ checkpoint_every = 1
 """
 
 
-def _call(tmp: Path, data: Path, *args: str) -> subprocess.CompletedProcess:
+def _call(tmp: Path, data: Path, *args: str, env: dict[str, str] | None = None
+          ) -> subprocess.CompletedProcess:
     env = {**os.environ, "DATA_DIR": str(data), "RUNS_DIR": str(tmp / "runs"),
            "CHUNK_EPISODES": "1", "FINAL_EPISODES": "1",
-           "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+           "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}",
+           **(env or {})}
     return subprocess.run([str(SCRIPT), *args], capture_output=True, text=True, env=env,
                           timeout=600, cwd=tmp)
 
@@ -71,6 +73,19 @@ def test_chunks_continue_from_results_and_end_evaluated(builtin_data: Config,
     # the machines of both launches are kept with it, each from the iteration it trained first
     launches = _rows(saved / "launches.csv")
     assert [int(r["first_iteration"]) for r in launches] == [1, len(first) + 1]
+
+    # STEPS extends the budget: not in place (its eval/ is of the old budget), in a copy.
+    extend = {"STEPS": "1280"}
+    done = _call(tmp_path, builtin_data.data_dir, str(results), "tiny", str(config), "5", "10",
+                 env=extend)
+    assert done.returncode == 2 and "extend a copy without eval/" in done.stderr
+    shutil.copytree(saved, results / "runs" / "tiny-ext", ignore=shutil.ignore_patterns("eval"))
+    done = _call(tmp_path, builtin_data.data_dir, str(results), "tiny-ext", str(config), "5",
+                 "10", env=extend)
+    assert done.returncode == 0, done.stderr[-3000:]
+    longer = _rows(results / "runs" / "tiny-ext" / "metrics.csv")
+    assert longer[: len(rows)] == rows and 1280 <= int(longer[-1]["env_steps"]) < 1280 + 64
+    assert (results / "runs" / "tiny-ext" / "eval" / "per_object.csv").is_file()
 
 
 def test_bad_arguments_are_one_line(tmp_path: Path) -> None:

@@ -138,8 +138,9 @@ def test_training_with_grasp_starts_and_probing_them(
 
 def test_object_curriculum_reads_each_kept_checkpoint(builtin_data: Config, tmp_path: Path) -> None:
     """scripts/object_curriculum.py: one row per kept checkpoint (every iteration here), each
-    object's target within the curriculum's range and its held rate a fraction; a run without a
-    per-object curriculum is a one-line error."""
+    object's target within the curriculum's range and its held rate a fraction; ``--final``
+    sets the last target beside the evaluation and groups the pairs by where their target
+    ended; a run without a per-object curriculum is a one-line error."""
     import json
 
     from trainer.config import config_dict, load_train_config
@@ -167,6 +168,27 @@ def test_object_curriculum_reads_each_kept_checkpoint(builtin_data: Config, tmp_
             assert held != held or 0.0 <= held <= 1.0  # nan before the object's first episode
     assert (tmp_path / "c.csv").read_text().startswith("iteration,env_steps,minutes,builtin_box,")
     assert (tmp_path / "c.png").stat().st_size > 1000
+
+    # --final: the last targets beside the evaluation, grouped by where they ended.
+    (run.path / "eval").mkdir()
+    (run.path / "eval" / "per_object.csv").write_text(
+        "object,episodes,successes,success_rate\nbuiltin_box,50,40,0.8\nbuiltin_dice,50,3,0.06\n")
+    lines = object_curriculum.main([str(run.path), "--final", "--objects", "builtin_dice"])
+    assert lines[2] == f"| run | builtin_dice | {rows[-1]['builtin_dice']:.2f} | " \
+        f"{rows[-1]['builtin_dice_held']:.2f} | 3/50 |" and len(lines) == 3 + 3 + 1
+    with pytest.raises(SystemExit, match="no object 'builtin_mug'"):
+        object_curriculum.main([str(run.path), "--final", "--objects", "builtin_mug"])
+    with pytest.raises(SystemExit):
+        object_curriculum.main([str(run.path), str(run.path)])  # several runs need --final
+    pairs = [{"target": target, "start": 0.03, "h_bar": 0.2, "successes": held, "episodes": 50,
+              "held": 0.5, "run": run.path, "object": "o"}
+             for target, held in ((0.03, 2), (0.0300001, 4), (0.03, None), (0.05, 15),
+                                  (0.199, 30), (0.2, 12), (0.2, 43))]
+    assert [object_curriculum.rung(p) for p in pairs] == [
+        "first rung", "first rung", "first rung", "between", "at h_bar", "at h_bar", "at h_bar"]
+    summary = object_curriculum.final_table(pairs)[-3:]
+    assert summary == ["| first rung | 2 | 3 (2-4) |", "| between | 1 | 15 (15-15) |",
+                       "| at h_bar | 3 | 30 (12-43) |"]
 
     plain = tmp_path / "plain"
     plain.mkdir()
