@@ -339,9 +339,11 @@ def test_seeds_settle_only_separated_arms_with_two_seeds(tmp_path: Path) -> None
     assert rows["com"][1:] == ["1", "1.000", "—", "—"]
     # Within: pc32 (0.9, 0.8), bbox (0.6, 0.7), sq (0.5, 0.9): sums of squares 0.005 + 0.005 +
     # 0.08 over 3 degrees of freedom; between: the means 0.85, 0.65, 0.7 (com has one seed).
-    within, between, arms = report.seed_and_arm_spread([[0.9, 0.8], [0.6, 0.7], [0.5, 0.9], [1]])
+    within, between, alike, arms = report.seed_and_arm_spread(
+        [[0.9, 0.8], [0.6, 0.7], [0.5, 0.9], [1]])
     assert within == pytest.approx(math.sqrt(0.09 / 3)) and arms == 3
     assert between == pytest.approx(float(np.std([0.85, 0.65, 0.7], ddof=1)))
+    assert alike == pytest.approx(within / math.sqrt(2))
     assert report.seed_and_arm_spread([[0.9, 0.8], [1.0]]) is None
     assert f"seeds of one arm spread by {within:.3f}" in report.seeds_table(runs)
     assert f"would spread by about {within / math.sqrt(2):.3f}." in report.seeds_table(runs)

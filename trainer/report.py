@@ -46,7 +46,7 @@ from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 
@@ -1015,7 +1015,8 @@ def settled(higher: Sequence[float], lower: Sequence[float]) -> bool:
 def seeds_table(runs: Sequence[Run]) -> str:
     """Per evaluated arm, best mean first: its overall success per seed, the arms the seeds
     settle it above (``settled``), and those whose seeds overlap with its own (a difference
-    inside the seed spread) or that have one seed (cannot be settled yet)."""
+    inside the seed spread; an arm with one seed is in neither column); then the seeds' spread
+    against the arms' (``seed_and_arm_spread``)."""
     labels = group_labels(runs)
     overall = {labels[k]: overall_success(m) for k, m in group_runs(runs).items()}
     overall = {label: rates for label, rates in overall.items() if rates}
@@ -1033,31 +1034,39 @@ def seeds_table(runs: Sequence[Run]) -> str:
         per_seed = ", ".join(f"{rate:.3f}" for rate in mine)
         lines.append(f"| {label} | {len(mine)} | {per_seed} | {', '.join(above) or _DASH} | "
                      f"{', '.join(overlap) or _DASH} |")
-    counts = [len(rates) for rates in overall.values() if len(rates) >= 2]
     spread = seed_and_arm_spread(list(overall.values()))
     if spread is not None:
-        within, between, arms = spread
-        # Were the arms alike, their means would spread by the seeds' std over sqrt(seeds).
-        alike = within * math.sqrt(sum(1 / n for n in counts) / len(counts))
-        lines += ["", f"Over the {arms} arms with two seeds or more: the seeds of one arm spread "
-                  f"by {within:.3f} (pooled std, ddof 1), the arms' means by {between:.3f} (std "
-                  f"of the means, ddof 1); were the arms alike, their means would spread by "
-                  f"about {alike:.3f}."]
+        lines += ["", f"Over the {spread.arms} arms with two seeds or more: the seeds of one arm "
+                  f"spread by {spread.within:.3f} (pooled std, ddof 1), the arms' means by "
+                  f"{spread.between:.3f} (std of the means, ddof 1); were the arms alike, "
+                  f"their means would spread by about {spread.alike:.3f}."]
     return "\n".join(lines) + "\n"
 
 
-def seed_and_arm_spread(
-    arms: Sequence[Sequence[float]],
-) -> tuple[float, float, int] | None:
-    """(pooled within-arm std of the seeds, std of the arms' means, number of arms) over the
-    arms with two seeds or more (ddof 1 both); None for fewer than two such arms."""
+class SeedSpread(NamedTuple):
+    """How much the seeds of one arm differ, against how much the arms do (overall success)."""
+
+    within: float
+    """Pooled standard deviation of the seeds within an arm (ddof 1)."""
+    between: float
+    """Standard deviation of the arms' means (ddof 1)."""
+    alike: float
+    """What ``between`` would be were the arms alike: ``within`` / sqrt(seeds per arm, their
+    harmonic mean)."""
+    arms: int
+
+
+def seed_and_arm_spread(arms: Sequence[Sequence[float]]) -> SeedSpread | None:
+    """The ``SeedSpread`` over the arms (each its seeds' overall success) with two seeds or
+    more; None for fewer than two such arms."""
     kept = [np.asarray(a, dtype=np.float64) for a in arms if len(a) >= 2]
     if len(kept) < 2:
         return None
     dof = sum(a.size - 1 for a in kept)
     within = math.sqrt(sum(float(((a - a.mean()) ** 2).sum()) for a in kept) / dof)
     between = float(np.std([a.mean() for a in kept], ddof=1))
-    return within, between, len(kept)
+    alike = within * math.sqrt(sum(1 / a.size for a in kept) / len(kept))
+    return SeedSpread(within, between, alike, len(kept))
 
 
 # ---------------------------------------------------------------------------------------- plots
