@@ -25,8 +25,9 @@ import statistics
 from pathlib import Path
 
 
-def rows_of(run_dir: Path) -> tuple[list[str], list[dict[str, float]]]:
-    """(object names, one row per kept checkpoint, oldest first)."""
+def rows_of(run_dir: Path, last_only: bool = False) -> tuple[list[str], list[dict[str, float]]]:
+    """(object names, one row per kept checkpoint, oldest first; the last one only with
+    ``last_only``)."""
     from trainer.errors import TrainerError
     from trainer.objects import task_names
     from trainer.training.checkpoint import read_checkpoint
@@ -42,7 +43,7 @@ def rows_of(run_dir: Path) -> tuple[list[str], list[dict[str, float]]]:
     with open(run.metrics, newline="") as handle:
         for row in csv.DictReader(handle):
             steps[int(row["iteration"])] = (float(row["env_steps"]), float(row["wall_time_s"]))
-    paths = [run.checkpoint(i) for i in run.checkpoint_iterations()]
+    paths = [] if last_only else [run.checkpoint(i) for i in run.checkpoint_iterations()]
     if run.last.is_file():
         paths.append(run.last)
     out: dict[int, dict[str, float]] = {}
@@ -68,23 +69,20 @@ def final_rows(run_dirs: list[Path], objects: list[str] | None = None) -> list[d
     rate at it, the first rung's target (``reward.h_bar_start``), the task's ``h_bar``, and the
     evaluation's successes and episodes (``eval/per_object.csv``; None where not evaluated)."""
     from trainer.errors import TrainerError
+    from trainer.report import _read_per_object
     from trainer.training.run_dir import RunDir
 
     out = []
     for run_dir in run_dirs:
-        names, rows = rows_of(run_dir)
+        names, rows = rows_of(run_dir, last_only=True)
         reward = RunDir(run_dir).load_config().env.reward
-        evaluated: dict[str, tuple[int, int]] = {}
         per_object = run_dir / "eval" / "per_object.csv"
-        if per_object.is_file():
-            with open(per_object, newline="") as handle:
-                evaluated = {r["object"]: (int(r["successes"]), int(r["episodes"]))
-                             for r in csv.DictReader(handle)}
+        evaluated = _read_per_object(per_object) if per_object.is_file() else {}
         for name in objects or names:
             if name not in names:
                 raise TrainerError(f"{run_dir}: no object {name!r}; its objects: "
                                    f"{', '.join(names)}")
-            successes, episodes = evaluated.get(name, (None, None))
+            episodes, successes = evaluated.get(name, (None, None))
             out.append({"run": run_dir, "object": name, "target": rows[-1][name],
                         "held": rows[-1][f"{name}_held"], "start": reward.h_bar_start,
                         "h_bar": reward.h_bar, "successes": successes, "episodes": episodes})

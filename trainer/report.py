@@ -915,7 +915,8 @@ class Ranking:
     left_out: tuple[str, ...] = ()
     """Representations in several groups (e.g. split by a setting), not ranked."""
     seeds: tuple[tuple[float, ...], ...] = ()
-    """Per arm (``arms``' order), the overall success of each evaluated seed (``settled``)."""
+    """Per arm (``arms``' order), the overall success of each evaluated seed (``settled``);
+    ``ours`` is their mean."""
 
 
 def paper_ranking(runs: Sequence[Run]) -> Ranking:
@@ -966,7 +967,6 @@ def ranking_text(ranking: Ranking) -> str:
         )
     rho = "undefined (all tied on one side)" if math.isnan(ranking.rho) else f"{ranking.rho:+.2f}"
     agree, disagree, tied, settled_disagree = [], [], [], []
-    seeds = ranking.seeds or tuple((v,) for v in ranking.ours)
     for i in range(len(ranking.arms)):
         for j in range(i + 1, len(ranking.arms)):
             a, b = ranking.arms[i], ranking.arms[j]
@@ -982,7 +982,7 @@ def ranking_text(ranking: Ranking) -> str:
             else:
                 disagree.append(f"{a} > {b}" if ours > 0 else f"{b} > {a}")
                 high, low = (i, j) if ours > 0 else (j, i)
-                if settled(seeds[high], seeds[low]):
+                if settled(ranking.seeds[high], ranking.seeds[low]):
                     settled_disagree.append(disagree[-1])
     pairs = len(ranking.arms) * (len(ranking.arms) - 1) // 2
     text = (
