@@ -3,6 +3,7 @@ home_above_objects``), scripts/early_lifts.py (what the initial policy's low lif
 scripts/policy_probe.py (what a trained policy does over an episode) and
 scripts/object_curriculum.py (each object's curriculum target over a run),
 scripts/start_noise.py (how much exploration noise grasp starts survive),
+scripts/start_vs_home.py (an object's success from home and from its grasp starts),
 scripts/episode_outcomes.py (how each evaluation episode ends), scripts/metrics_blocks.py (a
 training curve in blocks of env steps), scripts/eval_upright.py (an evaluation split by how
 the targets start), scripts/grasp_offset.py (where a policy holds each object) and
@@ -233,6 +234,41 @@ def test_start_noise_replays_the_same_starts_per_setting(
     (run.path / "grasp_starts.pt").unlink()
     with pytest.raises(SystemExit, match="has no grasp_starts.pt"):
         start_noise.survive(run.path, [quiet])
+
+
+def test_start_vs_home_counts_each_kind_of_episode(builtin_data: Config, tmp_path: Path) -> None:
+    """scripts/start_vs_home.py on a tiny run with grasp starts: every env plays each round from
+    home, only the envs with a recorded start below the target play from starts; the same seed
+    gives the same counts; a run without recorded starts is a one-line error."""
+    import torch
+
+    from trainer.ppo import train
+    from trainer.tasks.starts import GraspStarts
+
+    start_vs_home = script("scripts", "start_vs_home")
+    run = train(tiny_grasp_start_config(builtin_data), tmp_path / "run", progress=False)
+    starts = GraspStarts.load(run.grasp_starts)
+    h_bar = 0.03
+    with_start = int((starts.valid & (starts.lift < h_bar)).any(1).sum())
+    assert with_start >= 1
+    # the closed grasp: each env's last usable capture, and only that one
+    closed = start_vs_home.closed_starts(starts, torch.full((4,), h_bar)).valid
+    usable = starts.valid & (starts.lift < h_bar)
+    for env in range(4):
+        picked = closed[env].nonzero().flatten().tolist()
+        assert picked == ([usable[env].nonzero().max().item()] if usable[env].any() else [])
+    table = start_vs_home.start_vs_home(run.path, h_bar=h_bar, rounds=2)
+    assert list(table["builtin_cylinder"]) == ["home", "starts", "closed"]
+    (home_s, home_n), (start_s, start_n), (closed_s, closed_n) = (
+        table["builtin_cylinder"].values())
+    assert home_n == 2 * 4 and start_n == closed_n == 2 * with_start
+    assert 0 <= home_s <= home_n and 0 <= start_s <= start_n and 0 <= closed_s <= closed_n
+    assert start_vs_home.start_vs_home(run.path, h_bar=h_bar, rounds=2) == table
+    lines = start_vs_home.main([str(run.path), "--rounds", "1"])
+    assert lines[-1].startswith("| run | builtin_cylinder | ") and "/4 (" in lines[-1]
+    (run.path / "grasp_starts.pt").unlink()
+    with pytest.raises(SystemExit, match="has no grasp_starts.pt"):
+        start_vs_home.start_vs_home(run.path)
 
 
 def test_episode_outcomes_puts_each_episode_in_one_class(box_run: RunDir) -> None:
