@@ -1,6 +1,6 @@
 """Where a trained policy fails an object: from home, or after the grasp is already in hand.
 Per object, how often a run's last checkpoint succeeds at a low lift target (``--h-bar``,
-default 0.03 m: the lift curriculum's first rung) in two kinds of episode, its actions sampled
+default 0.03 m: the lift curriculum's first rung) in three kinds of episode, its actions sampled
 from its Gaussian as in training:
 
 - ``home``: from a settled state with the robot at home, as every evaluation and the training
@@ -11,9 +11,10 @@ from its Gaussian as in training:
 - ``closed``: from each env's last recorded state below the target, the script's hand closed
   around the object and not yet lifting it: all that is left to do is hold on and rise.
 
-A policy that holds an object from its grasp starts but not from home has the lift and lacks the
-approach; one that fails from the closed grasp too has not learned to lift the object at all
-(results/cpu-comparison-2026-11-29/, chunk 13: the hard objects on the curriculum's first rung).
+A policy that lifts an object from the closed grasp and fails it from the open-hand states and
+from home has the lift and lacks the closing; one that fails from the closed grasp too loses a
+grasp already made (results/cpu-comparison-2026-11-29/, chunk 13: the runs whose knife and dice
+stayed on the curriculum's first rung lift them from the closed grasp as well as the others).
 
     python scripts/start_vs_home.py RUN... [--objects A,B] [--h-bar 0.03] [--rounds 2]
                                     [--seed 7] [--deterministic] [--kinds home,starts,closed]

@@ -3,7 +3,7 @@ home_above_objects``), scripts/early_lifts.py (what the initial policy's low lif
 scripts/policy_probe.py (what a trained policy does over an episode) and
 scripts/object_curriculum.py (each object's curriculum target over a run),
 scripts/start_noise.py (how much exploration noise grasp starts survive),
-scripts/start_vs_home.py (an object's success from home and from its grasp starts),
+scripts/start_vs_home.py (an object's success from home, its grasp starts, the closed grasp),
 scripts/episode_outcomes.py (how each evaluation episode ends), scripts/metrics_blocks.py (a
 training curve in blocks of env steps), scripts/eval_upright.py (an evaluation split by how
 the targets start), scripts/grasp_offset.py (where a policy holds each object) and
@@ -238,7 +238,8 @@ def test_start_noise_replays_the_same_starts_per_setting(
 
 def test_start_vs_home_counts_each_kind_of_episode(builtin_data: Config, tmp_path: Path) -> None:
     """scripts/start_vs_home.py on a tiny run with grasp starts: every env plays each round from
-    home, only the envs with a recorded start below the target play from starts; the same seed
+    home, only the envs with a recorded start below the target play from starts and from the
+    closed grasp (each env's last such start, and only it); the same seed
     gives the same counts; a run without recorded starts is a one-line error."""
     import torch
 
