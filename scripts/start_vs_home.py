@@ -36,14 +36,20 @@ KINDS = ("home", "starts", "closed")
 """The kinds of episode, as the module's docstring says."""
 
 
+def usable(starts: GraspStarts, below: torch.Tensor) -> torch.Tensor:
+    """(E, S) bool: the captures a reset may start from, valid and lifted less than ``below``
+    (E,) m, the env's target (as ``GraspStart`` draws them)."""
+    return starts.valid & (starts.lift < below[:, None])
+
+
 def closed_starts(starts: GraspStarts, below: torch.Tensor) -> GraspStarts:
     """``starts`` with one valid state per env: its last valid capture whose lift is under
     ``below`` (E,) m, the furthest along the script before the target is reached (none where
     the env has none)."""
-    usable = starts.valid & (starts.lift < below[:, None])
-    S = usable.shape[1]
-    last = torch.where(usable, torch.arange(S), -1).amax(1)  # (E,), -1: none
-    valid = torch.zeros_like(usable)
+    usable_now = usable(starts, below)
+    S = usable_now.shape[1]
+    last = torch.where(usable_now, torch.arange(S), -1).amax(1)  # (E,), -1: none
+    valid = torch.zeros_like(usable_now)
     has = last >= 0
     valid[has, last[has]] = True
     return dataclasses.replace(starts, valid=valid)
@@ -58,8 +64,7 @@ def _episodes(session: EvalSession, seed: int, starts: GraspStarts | None,
     part = torch.ones(env.num_envs, dtype=torch.bool)
     if starts is not None:
         env.set_grasp_starts(starts, 1.0, torch.Generator().manual_seed(seed))
-        below = torch.as_tensor(env.h_bar)[env.target_objects()].cpu()
-        part = (starts.valid & (starts.lift < below[:, None])).any(1)
+        part = usable(starts, env.h_bar[env.target_objects()].cpu()).any(1)
     with session.sampling(seed):
         success, _, target = session.run(env, deterministic=deterministic)
     env.close()
