@@ -515,3 +515,43 @@ def test_lift_clearance_counts_a_lift_not_a_tip(builtin_data: Config) -> None:
     assert td["success"][:, 0].tolist() == [True, False]
     torch.testing.assert_close(td["lift_height"][0, 0], rise, atol=1e-5, rtol=0)
     plain.close()
+
+
+@pytest.mark.parametrize("representation", ["bbox", "sdf"])
+def test_observed_shapes_change_what_the_policy_is_told_only(
+    builtin_data: Config, representation: str
+) -> None:
+    """``StepOutputs.observed``: objects told with other shapes (boxes twice their size, an SDF
+    1 cm further out) change the ``object`` observation and nothing else: on the same seed and
+    actions the physics, the proprioception, every reward term and the success are those of the
+    real objects, also for sdf, whose reward otherwise reuses the observation's distances."""
+    cfg = load_env_config(num_envs=3, objects="builtin_box,builtin_mug",
+                          representation=representation, data_dir=builtin_data.data_dir)
+    real, told = make_env(cfg, seed=2), make_env(cfg, seed=2)
+    try:
+        real_sdf = told.objects.sdf
+
+        class FarSDF:  # the sdf representation told every fingertip 1 cm further out
+            def query(self, *args: torch.Tensor) -> torch.Tensor:
+                return real_sdf.query(*args) + 0.01
+
+        told.outputs.observed = dataclasses.replace(
+            told.objects, bbox_extents=told.objects.bbox_extents * 2, sdf=FarSDF())
+        a, b = real.reset(), told.reset()
+        gen = torch.Generator().manual_seed(0)
+        for _ in range(4):
+            if representation == "bbox":
+                torch.testing.assert_close(b["object"][:, 7:], 2 * a["object"][:, 7:])
+                torch.testing.assert_close(b["object"][:, :7], a["object"][:, :7])
+            else:
+                torch.testing.assert_close(b["object"], a["object"] + 0.01)
+            torch.testing.assert_close(b["proprio"], a["proprio"])
+            action = torch.rand(3, 11, generator=gen) * 2 - 1
+            a = real.step(TensorDict({"action": action}, batch_size=[3]))["next"]
+            b = told.step(TensorDict({"action": action.clone()}, batch_size=[3]))["next"]
+            for key in ("reward", "reward_contact", "reward_lift", "success", "lift_height"):
+                torch.testing.assert_close(b[key], a[key])
+        torch.testing.assert_close(told.backend.qpos, real.backend.qpos)
+    finally:
+        real.close()
+        told.close()

@@ -4,6 +4,7 @@ scripts/policy_probe.py (what a trained policy does over an episode) and
 scripts/object_curriculum.py (each object's curriculum target over a run),
 scripts/start_noise.py (how much exploration noise grasp starts survive),
 scripts/start_vs_home.py (an object's success from home, its grasp starts, the closed grasp),
+scripts/observed_size.py (an object's success when the policy is told another size),
 scripts/episode_outcomes.py (how each evaluation episode ends), scripts/metrics_blocks.py (a
 training curve in blocks of env steps), scripts/eval_upright.py (an evaluation split by how
 the targets start), scripts/grasp_offset.py (where a policy holds each object) and
@@ -398,6 +399,49 @@ def test_eval_upright_splits_exactly_the_episodes_of_trainer_eval(dice_mug: Path
     lines = eval_upright.main([str(dice_mug), "--episodes-per-object", "12"])
     assert lines[2] == f"| builtin_dice | {rows[0][2]}/{rows[0][1]} | {rows[0][4]}/{rows[0][3]} | "\
         f"{result.successes[0]}/12 |" and len(lines) == 4
+
+
+def test_observed_size_scales_the_told_shapes_and_replays_the_same_episodes(
+    dice_mug: Path, builtin_data: Config, tmp_path: Path
+) -> None:
+    """scripts/observed_size.py: a scale multiplies the box extents, the superquadric's
+    semi-axes and the points' offsets from the box centre and nothing else; every scale plays
+    each object's share of the envs, the same episodes for the same seed whatever the other
+    scales; a run whose representation tells no size is a one-line error."""
+    import torch
+
+    from trainer.session import EvalSession
+
+    observed_size = script("scripts", "observed_size")
+    session = EvalSession.load(dice_mug)
+    env = session.env(4, 0, compile=False, quiet=True)
+    objects = env.objects
+    env.close()
+    twice = observed_size.scaled_shapes(objects, 2.0)
+    torch.testing.assert_close(twice.bbox_extents, 2 * objects.bbox_extents)
+    torch.testing.assert_close(twice.sq_params[:, 2:5], 2 * objects.sq_params[:, 2:5])
+    torch.testing.assert_close(twice.sq_params[:, :2], objects.sq_params[:, :2])
+    torch.testing.assert_close(twice.sq_params[:, 5:], objects.sq_params[:, 5:])
+    center = objects.bbox_center[:, None]
+    torch.testing.assert_close(twice.points - center, 2 * (objects.points - center))
+    assert twice.bbox_center is objects.bbox_center and twice.sdf is objects.sdf
+
+    names = ["builtin_dice", "builtin_mug"]
+    table = observed_size.observed_size(dice_mug, names, [3.0, 1.0], envs=6, rounds=2)
+    assert list(table) == names
+    for row in table.values():
+        assert [n for _, n in row.values()] == [6, 6]  # 3 envs x 2 rounds
+    alone = observed_size.observed_size(dice_mug, names, [1.0], envs=6, rounds=2)
+    assert {n: row[1.0] for n, row in table.items()} == {n: row[1.0] for n, row in alone.items()}
+    lines = observed_size.main([str(dice_mug), "--objects", "builtin_dice", "--scales", "1,2",
+                                "--envs", "2"])
+    with pytest.raises(SystemExit):
+        observed_size.main([str(dice_mug), "--objects", "builtin_dice", "--scales", "1,1"])
+    assert lines[2] == "| run | object | x1 | x2 |"
+    assert lines[-1].startswith("| run | builtin_dice | ")
+    com = tiny_run(builtin_data, tmp_path / "com", "builtin_dice", representation="com")
+    with pytest.raises(SystemExit, match="tells the policy no size"):
+        observed_size.observed_size(com.path, ["builtin_dice"], [1.0])
 
 
 def test_grasp_offset_measures_the_pads_in_the_object_box_frame(dice_mug: Path) -> None:

@@ -97,7 +97,11 @@ class StepOutputs:
     """The per-step outputs of a task's envs: the robot's sites (``kinematics``), the objects
     (``objects``) in slots at qpos addresses ``slot_qpos`` (K, 7), filled per env as
     ``assignment`` (E, K) object ids, the hand's joints at ``hand_qpos`` (11,), the reward's
-    ``terms`` and the task's ``extra_obs``."""
+    ``terms`` and the task's ``extra_obs``.
+
+    ``observed``: the objects as the policy is told of them, ``objects`` unless a caller sets
+    other shapes (scripts/observed_size.py: what a trained policy reads from the size it is
+    shown); the physics, the lift, the reward and the success always use ``objects``."""
 
     def __init__(
         self, cfg: EnvConfig, objects: ObjectSet, kinematics: SiteKinematics,
@@ -105,6 +109,7 @@ class StepOutputs:
         terms: Mapping[str, RewardTerm], extra_obs: ExtraObservations,
     ) -> None:
         self.cfg, self.objects, self.kinematics = cfg, objects, kinematics
+        self.observed: ObjectSet = objects
         self.slot_qpos, self.assignment, self.hand_qpos = slot_qpos, assignment, hand_qpos
         self.terms, self.extra_obs = terms, extra_obs
 
@@ -139,7 +144,7 @@ class StepOutputs:
             for k, v in obs.items()
         }
         lift = self.lift(obj_pos, obj_quat, target_id, start_height, start_low)
-        if self.cfg.representation == "sdf":
+        if self.cfg.representation == "sdf" and self.observed is self.objects:
             tip_distance = obs["object"]  # the same query: the fingertips' signed distances
         elif self.objects.sdf is not None:
             tip_distance = self.objects.sdf.query(tips, obj_pos, obj_quat, target_id)
@@ -163,7 +168,7 @@ class StepOutputs:
             parts.append(tips.reshape(tips.shape[0], -1))
         proprio = torch.cat(parts, dim=-1)
         obj = object_representation(
-            self.cfg.representation, self.objects, target_id, obj_pos, obj_quat, tips
+            self.cfg.representation, self.observed, target_id, obj_pos, obj_quat, tips
         )
         return {"proprio": proprio, "object": obj, **self.extra_obs(slots, target_slot)}
 
