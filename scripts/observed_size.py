@@ -92,13 +92,14 @@ def main(argv: list[str] | None = None) -> list[str]:
              f"{args.rounds} round(s) of {args.envs} envs", "",
              "| run | object | " + " | ".join(f"x{s:g}" for s in scales) + " |",
              "|---|---|" + "---:|" * len(scales)]
-    for run in args.runs:
+    print("\n".join(lines), flush=True)
+    for run in args.runs:  # each run's rows as it is done: a run of many takes minutes
         table = observed_size(run, objects, scales, args.h_bar, args.envs, args.rounds,
                               args.seed)
         for name, row in table.items():
             cells = [f"{s}/{n} ({s / n:.2f})" if n else "-" for s, n in row.values()]
             lines.append(f"| {run.name} | {name} | " + " | ".join(cells) + " |")
-    print("\n".join(lines))
+            print(lines[-1], flush=True)
     return lines
 
 
