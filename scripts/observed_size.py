@@ -10,10 +10,13 @@ bbox: the box's extents scaled (its centre and axes kept); sq: the three semi-ax
 exponents and the pose kept); pcN: the points about the box centre. com and sdf tell the policy
 no size (the pose; the fingertips' measured distances), so they have nothing to scale.
 
-A policy whose success on an object falls as the object is shown larger than it is closes its
-hand by the size it is told (results/cpu-comparison-2026-11-29/, chunk 14).
+A policy whose success on an object falls as the object is shown larger than it is grasps by
+the size it is told; one whose failure on an object does not lift when the object is shown
+smaller is not failing it for a misread size (results/cpu-comparison-2026-11-29/, chunk 14:
+the knife shown twice its size falls from 0.50 to 0.19 in the runs that lift it; the runs that
+fail the dice and the knife fail them as much when shown them at a third or half their size).
 
-    python scripts/observed_size.py RUN... [--objects A,B] [--scales 0.5,1,2,4]
+    python scripts/observed_size.py RUN... --objects A,B [--scales 0.5,1,2,4]
                                     [--h-bar 0.03] [--envs 120] [--rounds 1] [--seed 7]
 """
 
