@@ -99,9 +99,10 @@ class StepOutputs:
     ``assignment`` (E, K) object ids, the hand's joints at ``hand_qpos`` (11,), the reward's
     ``terms`` and the task's ``extra_obs``.
 
-    ``observed``: the objects as the policy is told of them, ``objects`` unless a caller sets
-    other shapes (scripts/observed_size.py: what a trained policy reads from the size it is
-    shown); the physics, the lift, the reward and the success always use ``objects``."""
+    ``observed``: the objects as the target's representation tells the policy of them,
+    ``objects`` unless a caller sets other shapes (scripts/observed_size.py: what a trained
+    policy reads from the size it is shown); the physics, the lift, the reward, the success and
+    a task's ``extra_obs`` (the bin's context boxes) always use ``objects``."""
 
     def __init__(
         self, cfg: EnvConfig, objects: ObjectSet, kinematics: SiteKinematics,
