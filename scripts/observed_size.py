@@ -26,6 +26,9 @@ import argparse
 import dataclasses
 from pathlib import Path
 
+import torch
+
+from trainer.evaluation import counts_by_object
 from trainer.objects import ObjectSet
 from trainer.session import EvalSession
 
@@ -59,19 +62,19 @@ def observed_size(run_dir: Path, objects: list[str], scales: list[float], h_bar:
     if not representation.startswith(SIZED):
         raise SystemExit(f"{run_dir}: its representation {representation!r} tells the policy "
                          f"no size; pass a run of {', '.join(SIZED)}")
-    counts = {n: {s: [0, 0] for s in scales} for n in objects}
+    totals = torch.zeros(len(scales), 2, len(objects), dtype=torch.long)  # episodes, successes
     for r in range(rounds):
-        for scale in scales:
-            env = session.env(envs, seed + r, objects, compile=False, quiet=True)
+        env = session.env(envs, seed + r, objects, compile=False, quiet=True)
+        for k, scale in enumerate(scales):
             env.outputs.observed = scaled_shapes(env.objects, scale)
+            env.set_seed(seed + r)  # every scale the same resets
             with session.sampling(seed + r):
-                success, _, target = session.run(env, deterministic=False)
-            env.close()
-            for i, name in enumerate(env.objects.names):
-                mine = target == i
-                counts[name][scale][0] += int(success[mine].sum())
-                counts[name][scale][1] += int(mine.sum())
-    return {n: {s: (v[0], v[1]) for s, v in row.items()} for n, row in counts.items()}
+                episodes = session.run(env, deterministic=False)
+            totals[k] += torch.tensor(counts_by_object(episodes, len(objects)))
+        env.close()
+    return {name: {scale: (int(totals[k, 1, i]), int(totals[k, 0, i]))
+                   for k, scale in enumerate(scales)}
+            for i, name in enumerate(env.objects.names)}
 
 
 def main(argv: list[str] | None = None) -> list[str]:

@@ -191,7 +191,7 @@ def evaluate(
             episodes = session.lift_episodes(names, episodes_per_object, seed,
                                              deterministic=not sample, max_envs=max_envs,
                                              **hooks)
-            result = EvalResult(names, *_counts(episodes, len(names)), task=cfg.env.task,
+            result = EvalResult(names, *counts_by_object(episodes, len(names)), task=cfg.env.task,
                                 representation=cfg.env.representation,
                                 face_up=start_up.counts(episodes, len(names)))
     result = dataclasses.replace(
@@ -205,7 +205,7 @@ def evaluate(
     return result
 
 
-def _counts(episodes: Episodes, num_objects: int) -> tuple[list[int], list[int]]:
+def counts_by_object(episodes: Episodes, num_objects: int) -> tuple[list[int], list[int]]:
     """Per object: (episodes with it as the target, successes)."""
     target = episodes.target
     return (torch.bincount(target, minlength=num_objects).tolist(),
