@@ -69,7 +69,7 @@ def final_rows(run_dirs: list[Path], objects: list[str] | None = None) -> list[d
     rate at it, the first rung's target (``reward.h_bar_start``), the task's ``h_bar``, and the
     evaluation's successes and episodes (``eval/per_object.csv``; None where not evaluated)."""
     from trainer.errors import TrainerError
-    from trainer.report import _read_per_object
+    from trainer.report import read_per_object
     from trainer.training.run_dir import RunDir
 
     out = []
@@ -77,7 +77,7 @@ def final_rows(run_dirs: list[Path], objects: list[str] | None = None) -> list[d
         names, rows = rows_of(run_dir, last_only=True)
         reward = RunDir(run_dir).load_config().env.reward
         per_object = run_dir / "eval" / "per_object.csv"
-        evaluated = _read_per_object(per_object) if per_object.is_file() else {}
+        evaluated = read_per_object(per_object) if per_object.is_file() else {}
         for name in objects or names:
             if name not in names:
                 raise TrainerError(f"{run_dir}: no object {name!r}; its objects: "
@@ -118,9 +118,9 @@ def final_table(rows: list[dict]) -> list[str]:
 
 
 def plot(names: list[str], rows: list[dict[str, float]], png: Path) -> None:
-    from trainer.report import _pyplot, _save
+    from trainer.report import pyplot, save_png
 
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.5))
     x = [r["env_steps"] / 1e6 for r in rows]
     for name in names:
@@ -129,7 +129,7 @@ def plot(names: list[str], rows: list[dict[str, float]], png: Path) -> None:
     ax.set_ylabel("lift target (m)")
     ax.set_title("per-object lift curriculum")
     ax.legend(fontsize=7, ncol=2)
-    _save(fig, png)
+    save_png(fig, png)
 
 
 def main(argv: list[str] | None = None) -> list[dict[str, float]] | list[str]:

@@ -27,7 +27,7 @@ from geomgrasp.rotations import quat_to_matrix
 from trainer.errors import TrainerError
 from trainer.grasps.outcomes import HELD_DISTANCE, HELD_PADS
 from trainer.grasps.runner import keypoint_distances
-from trainer.report import task_label
+from trainer.labels import task_label
 from trainer.session import EVAL_SEED, MAX_ENVS, Episodes, EvalSession
 from trainer.tasks import GraspTask
 from trainer.training.run_dir import BY_START_COLUMNS, RunDir, evaluated_on
