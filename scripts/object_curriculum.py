@@ -6,12 +6,17 @@ on). Writes a CSV (iteration, env_steps, minutes, then ``<object>`` targets in m
 
     python scripts/object_curriculum.py RUN_DIR [--csv FILE] [--png FILE]
     python scripts/object_curriculum.py RUN_DIR... --final [--objects A,B]
+    python scripts/object_curriculum.py RUN_DIR... --left [--objects A,B]
 
 ``--final`` writes nothing: for each run its last checkpoint's target and held rate per object
 beside the run's ``trainer eval`` successes (``eval/per_object.csv``), then the (run, object)
 pairs grouped by where their target ended (still on the first rung, between, at the task's
 h_bar) with their evaluation: results/cpu-comparison-2026-11-29/ (2026-11-30) found the hard
 objects evaluated at 0.2 m by whether training had moved them off the first rung.
+
+``--left`` reads the CSV the first form wrote into each run (``RUN_DIR/curriculum.csv``: the
+history, which outlives the checkpoints it was read from) and says when each object's target
+first left the first rung, in env steps, with the summary per object over the runs.
 
 (``trainer report`` plots the run's mean target from metrics.csv; this is the per-object view,
 e.g. results/cpu-table1-together-2026-11-26/.)
@@ -117,6 +122,69 @@ def final_table(rows: list[dict]) -> list[str]:
     return lines
 
 
+def left_rows(run_dirs: list[Path], objects: list[str] | None = None) -> list[dict]:
+    """Per run and object (the run's, or ``objects``): ``left``, the env steps of the first row
+    of the run's curriculum.csv whose target is above the first rung (``reward.h_bar_start``;
+    None if none is), ``first`` and ``last``, the env steps of its first and last rows (a run
+    whose first kept checkpoint already has the object off the first rung left it by then, not
+    at it), ``top``, those of the first row whose target is the task's ``h_bar`` (None if
+    none), and ``target``, the last row's target (m)."""
+    from trainer.errors import TrainerError
+    from trainer.training.run_dir import RunDir
+
+    lacking = [str(d) for d in run_dirs if not (d / "curriculum.csv").is_file()]
+    if lacking:
+        raise TrainerError(f"no curriculum.csv in {', '.join(lacking)}: write it with "
+                           "scripts/object_curriculum.py RUN_DIR from the run's kept checkpoints")
+    out = []
+    for run_dir in run_dirs:
+        path = run_dir / "curriculum.csv"
+        reward = RunDir(run_dir).load_config().env.reward
+        with open(path, newline="") as handle:
+            rows = [{k: float(v) for k, v in row.items()} for row in csv.DictReader(handle)]
+        if not rows:
+            raise TrainerError(f"{path}: no rows; write it again from the run's checkpoints")
+        names = [k for k in rows[0] if k not in ("iteration", "env_steps", "minutes")
+                 and not k.endswith("_held")]
+        for name in objects or names:
+            if name not in names:
+                raise TrainerError(f"{path}: no object {name!r}")
+            # 1 mm tolerance: targets are stored as float32 (see ``rung``).
+            left = next((r["env_steps"] for r in rows if r[name] > reward.h_bar_start + 1e-3),
+                        None)
+            top = next((r["env_steps"] for r in rows if r[name] >= reward.h_bar - 1e-3), None)
+            out.append({"run": run_dir, "object": name, "left": left, "top": top,
+                        "first": rows[0]["env_steps"], "last": rows[-1]["env_steps"],
+                        "target": rows[-1][name]})
+    return out
+
+
+def left_table(rows: list[dict]) -> list[str]:
+    """The markdown lines of ``--left``: one row per (run, object), a blank line, then per object
+    the runs whose target left the first rung and the median and range of when (M env steps;
+    a run that had left by its first kept row counts at that row), and the runs whose target
+    reached ``h_bar``."""
+    def when(r: dict) -> str:
+        if r["left"] is None:
+            return f"not by {r['last'] / 1e6:.2f}"
+        return f"{'by ' if r['left'] == r['first'] else ''}{r['left'] / 1e6:.2f}"
+
+    lines = ["| run | object | left the first rung (M env steps) | at h_bar (M env steps) | "
+             "target at the last row (m) |", "|---|---|---:|---:|---:|"]
+    lines += [f"| {r['run'].name} | {r['object']} | {when(r)} | "
+              f"{'—' if r['top'] is None else format(r['top'] / 1e6, '.2f')} | "
+              f"{r['target']:.2f} |" for r in rows]
+    lines += ["", "| object | runs that left it | when (M env steps): median (range) | runs at "
+              "h_bar |", "|---|---:|---|---:|"]
+    for name in dict.fromkeys(r["object"] for r in rows):
+        mine = [r for r in rows if r["object"] == name]
+        got = sorted(r["left"] / 1e6 for r in mine if r["left"] is not None)
+        spread = f"{statistics.median(got):.2f} ({got[0]:.2f}-{got[-1]:.2f})" if got else "—"
+        top = sum(r["top"] is not None for r in mine)
+        lines.append(f"| {name} | {len(got)} of {len(mine)} | {spread} | {top} |")
+    return lines
+
+
 def plot(names: list[str], rows: list[dict[str, float]], png: Path) -> None:
     from trainer.report import pyplot, save_png
 
@@ -141,8 +209,21 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]] | list[str]:
     parser.add_argument("--png", type=Path, default=None, help="default: beside the CSV")
     parser.add_argument("--final", action="store_true",
                         help="the last targets beside the evaluation, over the runs given")
-    parser.add_argument("--objects", default=None, help="with --final: comma-separated")
+    parser.add_argument("--left", action="store_true",
+                        help="when each object left the first rung, from RUN_DIR/curriculum.csv")
+    parser.add_argument("--objects", default=None,
+                        help="with --final or --left: comma-separated")
     args = parser.parse_args(argv)
+    if args.left:
+        if args.final:
+            parser.error("--left goes without --final")
+        objects = args.objects.split(",") if args.objects else None
+        try:
+            lines = left_table(left_rows(args.run_dir, objects))
+        except TrainerError as exc:
+            raise SystemExit(f"object_curriculum: {exc}") from None
+        print("\n".join(lines))
+        return lines
     if args.final:
         objects = args.objects.split(",") if args.objects else None
         try:
@@ -152,7 +233,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]] | list[str]:
         print("\n".join(lines))
         return lines
     if len(args.run_dir) > 1 or args.objects:
-        parser.error("several runs and --objects go with --final")
+        parser.error("several runs and --objects go with --final or --left")
     args.run_dir = args.run_dir[0]
     try:
         names, rows = rows_of(args.run_dir)

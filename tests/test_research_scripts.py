@@ -142,7 +142,9 @@ def test_object_curriculum_reads_each_kept_checkpoint(builtin_data: Config, tmp_
     """scripts/object_curriculum.py: one row per kept checkpoint (every iteration here), each
     object's target within the curriculum's range and its held rate a fraction; ``--final``
     sets the last target beside the evaluation and groups the pairs by where their target
-    ended; a run without a per-object curriculum is a one-line error."""
+    ended; ``--left`` says from the run's curriculum.csv when each target left the first rung
+    (a float32 first rung is still the first rung); a run without a per-object curriculum is
+    a one-line error."""
     import json
 
     from trainer.config import config_dict, load_train_config
@@ -191,6 +193,36 @@ def test_object_curriculum_reads_each_kept_checkpoint(builtin_data: Config, tmp_
     summary = object_curriculum.final_table(pairs)[-3:]
     assert summary == ["| first rung | 2 | 3 (2-4) |", "| between | 1 | 15 (15-15) |",
                        "| at h_bar | 3 | 30 (12-43) |"]
+
+    # --left: when each object's target left the first rung, from the run's curriculum.csv.
+    with pytest.raises(SystemExit, match="no curriculum.csv in .*run: write it"):
+        object_curriculum.main([str(run.path), "--left"])
+    history = ("iteration,env_steps,minutes,builtin_box,builtin_box_held,builtin_dice,"
+               "builtin_dice_held\n10,100,1,0.03,0.5,0.03,0.1\n20,200,2,0.0300001,0.7,0.03,0.1\n"
+               "30,300,3,0.05,0.2,0.03,0.2\n40,400,4,0.07,0.3,0.03,0.1\n")
+    (run.path / "curriculum.csv").write_text(history)
+    lines = object_curriculum.main([str(run.path), "--left"])
+    # a float32 0.03 is still the first rung; the box left at 300 env steps, the dice never
+    assert lines[2:4] == ["| run | builtin_box | 0.00 | — | 0.07 |",
+                          "| run | builtin_dice | not by 0.00 | — | 0.03 |"]
+    assert lines[-2:] == ["| builtin_box | 1 of 1 | 0.00 (0.00-0.00) | 0 |",
+                          "| builtin_dice | 0 of 1 | — | 0 |"]
+    left = object_curriculum.left_rows([run.path])
+    assert [(r["object"], r["left"], r["top"], r["target"]) for r in left] == [
+        ("builtin_box", 300.0, None, 0.07), ("builtin_dice", None, None, 0.03)]
+    (run.path / "curriculum.csv").write_text(history + "50,500,5,0.2,0.5,0.03,0.1\n")
+    assert object_curriculum.left_rows([run.path])[0]["top"] == 500.0  # at the task's h_bar
+    summary = object_curriculum.left_table([
+        {"run": run.path, "object": "o", "left": 2.0e6, "top": 3.0e6, "first": 0.1e6,
+         "last": 4.6e6, "target": 0.2},
+        {"run": run.path, "object": "o", "left": 0.5e6, "top": 1.0e6, "first": 0.5e6,
+         "last": 4.6e6, "target": 0.2},  # off the first rung already at its first kept row
+        {"run": run.path, "object": "o", "left": 3.5e6, "top": None, "first": 0.1e6,
+         "last": 4.6e6, "target": 0.1}])
+    assert summary[3] == "| run | o | by 0.50 | 1.00 | 0.20 |"
+    assert summary[-1] == "| o | 3 of 3 | 2.00 (0.50-3.50) | 2 |"
+    with pytest.raises(SystemExit, match="no object 'builtin_mug'"):
+        object_curriculum.main([str(run.path), "--left", "--objects", "builtin_mug"])
 
     plain = tmp_path / "plain"
     plain.mkdir()
