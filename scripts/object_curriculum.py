@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import math
 import statistics
 from pathlib import Path
 
@@ -128,8 +129,10 @@ def left_rows(run_dirs: list[Path], objects: list[str] | None = None) -> list[di
     None if none is), ``first`` and ``last``, the env steps of its first and last rows (a run
     whose first kept checkpoint already has the object off the first rung left it by then, not
     at it), ``top``, those of the first row whose target is the task's ``h_bar`` (None if
-    none), and ``target``, the last row's target (m)."""
+    none), ``target``, the last row's target (m), and ``successes`` and ``episodes`` of the
+    run's evaluation (``eval/per_object.csv``; None where not evaluated)."""
     from trainer.errors import TrainerError
+    from trainer.report import read_per_object
     from trainer.training.run_dir import RunDir
 
     lacking = [str(d) for d in run_dirs if not (d / "curriculum.csv").is_file()]
@@ -140,6 +143,8 @@ def left_rows(run_dirs: list[Path], objects: list[str] | None = None) -> list[di
     for run_dir in run_dirs:
         path = run_dir / "curriculum.csv"
         reward = RunDir(run_dir).load_config().env.reward
+        per_object = run_dir / "eval" / "per_object.csv"
+        evaluated = read_per_object(per_object) if per_object.is_file() else {}
         with open(path, newline="") as handle:
             rows = [{k: float(v) for k, v in row.items()} for row in csv.DictReader(handle)]
         if not rows:
@@ -153,27 +158,32 @@ def left_rows(run_dirs: list[Path], objects: list[str] | None = None) -> list[di
             left = next((r["env_steps"] for r in rows if r[name] > reward.h_bar_start + 1e-3),
                         None)
             top = next((r["env_steps"] for r in rows if r[name] >= reward.h_bar - 1e-3), None)
+            episodes, successes = evaluated.get(name, (None, None))
             out.append({"run": run_dir, "object": name, "left": left, "top": top,
                         "first": rows[0]["env_steps"], "last": rows[-1]["env_steps"],
-                        "target": rows[-1][name]})
+                        "target": rows[-1][name], "successes": successes, "episodes": episodes})
     return out
 
 
-def left_table(rows: list[dict]) -> list[str]:
-    """The markdown lines of ``--left``: one row per (run, object), a blank line, then per object
-    the runs whose target left the first rung and the median and range of when (M env steps;
-    a run that had left by its first kept row counts at that row), and the runs whose target
-    reached ``h_bar``."""
+def left_table(rows: list[dict], edges: tuple[float, ...] = (2.5, 3.5)) -> list[str]:
+    """The markdown lines of ``--left``: one row per (run, object) with its evaluation, a blank
+    line, then per object the runs whose target left the first rung and the median and range
+    of when (M env steps; a run that had left by its first kept row counts at that row), and
+    the runs whose target reached ``h_bar``; then the evaluated pairs by when they left (before
+    each of ``edges``, M env steps, after the last, not at all) with their evaluation."""
     def when(r: dict) -> str:
         if r["left"] is None:
             return f"not by {r['last'] / 1e6:.2f}"
         return f"{'by ' if r['left'] == r['first'] else ''}{r['left'] / 1e6:.2f}"
 
+    def evaluation(r: dict) -> str:
+        return "—" if r["successes"] is None else f"{r['successes']}/{r['episodes']}"
+
     lines = ["| run | object | left the first rung (M env steps) | at h_bar (M env steps) | "
-             "target at the last row (m) |", "|---|---|---:|---:|---:|"]
+             "target at the last row (m) | eval successes |", "|---|---|---:|---:|---:|---:|"]
     lines += [f"| {r['run'].name} | {r['object']} | {when(r)} | "
               f"{'—' if r['top'] is None else format(r['top'] / 1e6, '.2f')} | "
-              f"{r['target']:.2f} |" for r in rows]
+              f"{r['target']:.2f} | {evaluation(r)} |" for r in rows]
     lines += ["", "| object | runs that left it | when (M env steps): median (range) | runs at "
               "h_bar |", "|---|---:|---|---:|"]
     for name in dict.fromkeys(r["object"] for r in rows):
@@ -182,6 +192,18 @@ def left_table(rows: list[dict]) -> list[str]:
         spread = f"{statistics.median(got):.2f} ({got[0]:.2f}-{got[-1]:.2f})" if got else "—"
         top = sum(r["top"] is not None for r in mine)
         lines.append(f"| {name} | {len(got)} of {len(mine)} | {spread} | {top} |")
+    bounds = [0.0, *edges, math.inf]
+    groups = [(f"{lo:g}-{hi:g}" if hi < math.inf else f"after {lo:g}",
+               [r for r in rows if r["left"] is not None and lo <= r["left"] / 1e6 < hi])
+              for lo, hi in zip(bounds, bounds[1:], strict=False)]
+    groups.append(("not at all", [r for r in rows if r["left"] is None]))
+    lines += ["", "| left the first rung (M env steps) | evaluated pairs | eval successes: median "
+              "(range) |", "|---|---:|---|"]
+    for label, members in groups:
+        got = sorted(r["successes"] for r in members if r["successes"] is not None)
+        if got:
+            lines.append(f"| {label} | {len(got)} | {statistics.median(got):g} "
+                         f"({got[0]}-{got[-1]}) |")
     return lines
 
 
@@ -211,6 +233,8 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]] | list[str]:
                         help="the last targets beside the evaluation, over the runs given")
     parser.add_argument("--left", action="store_true",
                         help="when each object left the first rung, from RUN_DIR/curriculum.csv")
+    parser.add_argument("--edges", default="2.5,3.5",
+                        help="with --left: M env steps that split the pairs by when they left")
     parser.add_argument("--objects", default=None,
                         help="with --final or --left: comma-separated")
     args = parser.parse_args(argv)
@@ -219,7 +243,13 @@ def main(argv: list[str] | None = None) -> list[dict[str, float]] | list[str]:
             parser.error("--left goes without --final")
         objects = args.objects.split(",") if args.objects else None
         try:
-            lines = left_table(left_rows(args.run_dir, objects))
+            edges = tuple(float(e) for e in args.edges.split(","))
+        except ValueError:
+            edges = ()
+        if not edges or list(edges) != sorted(set(edges)):
+            parser.error(f"--edges {args.edges}: M env steps, rising, comma-separated (2.5,3.5)")
+        try:
+            lines = left_table(left_rows(args.run_dir, objects), edges)
         except TrainerError as exc:
             raise SystemExit(f"object_curriculum: {exc}") from None
         print("\n".join(lines))

@@ -10,7 +10,8 @@ training curve in blocks of env steps), scripts/eval_upright.py (an evaluation s
 the targets start), scripts/grasp_offset.py (where a policy holds each object) and
 scripts/bin_diagnosis.py (each target's best scripted grasp in clutter, and why it fails),
 scripts/video_frames.py (a video's contact sheet), scripts/paired_evals.py (two evaluations
-of the same episodes compared) and scripts/run_status.py (where each run stands)."""
+of the same episodes compared), scripts/run_status.py (where each run stands) and
+scripts/object_correlation.py (which objects succeed together across runs)."""
 
 from __future__ import annotations
 
@@ -203,24 +204,32 @@ def test_object_curriculum_reads_each_kept_checkpoint(builtin_data: Config, tmp_
     (run.path / "curriculum.csv").write_text(history)
     lines = object_curriculum.main([str(run.path), "--left"])
     # a float32 0.03 is still the first rung; the box left at 300 env steps, the dice never
-    assert lines[2:4] == ["| run | builtin_box | 0.00 | — | 0.07 |",
-                          "| run | builtin_dice | not by 0.00 | — | 0.03 |"]
-    assert lines[-2:] == ["| builtin_box | 1 of 1 | 0.00 (0.00-0.00) | 0 |",
+    assert lines[2:4] == ["| run | builtin_box | 0.00 | — | 0.07 | 40/50 |",
+                          "| run | builtin_dice | not by 0.00 | — | 0.03 | 3/50 |"]
+    assert lines[7:9] == ["| builtin_box | 1 of 1 | 0.00 (0.00-0.00) | 0 |",
                           "| builtin_dice | 0 of 1 | — | 0 |"]
+    assert lines[-2:] == ["| 0-2.5 | 1 | 40 (40-40) |", "| not at all | 1 | 3 (3-3) |"]
+    with pytest.raises(SystemExit):
+        object_curriculum.main([str(run.path), "--left", "--edges", "3.5,2.5"])  # not rising
     left = object_curriculum.left_rows([run.path])
-    assert [(r["object"], r["left"], r["top"], r["target"]) for r in left] == [
-        ("builtin_box", 300.0, None, 0.07), ("builtin_dice", None, None, 0.03)]
+    assert [(r["object"], r["left"], r["top"], r["target"], r["successes"]) for r in left] == [
+        ("builtin_box", 300.0, None, 0.07, 40), ("builtin_dice", None, None, 0.03, 3)]
     (run.path / "curriculum.csv").write_text(history + "50,500,5,0.2,0.5,0.03,0.1\n")
     assert object_curriculum.left_rows([run.path])[0]["top"] == 500.0  # at the task's h_bar
     summary = object_curriculum.left_table([
         {"run": run.path, "object": "o", "left": 2.0e6, "top": 3.0e6, "first": 0.1e6,
-         "last": 4.6e6, "target": 0.2},
+         "last": 4.6e6, "target": 0.2, "successes": 30, "episodes": 50},
         {"run": run.path, "object": "o", "left": 0.5e6, "top": 1.0e6, "first": 0.5e6,
-         "last": 4.6e6, "target": 0.2},  # off the first rung already at its first kept row
+         "last": 4.6e6, "target": 0.2, "successes": 40, "episodes": 50},  # off at its first row
         {"run": run.path, "object": "o", "left": 3.5e6, "top": None, "first": 0.1e6,
-         "last": 4.6e6, "target": 0.1}])
-    assert summary[3] == "| run | o | by 0.50 | 1.00 | 0.20 |"
-    assert summary[-1] == "| o | 3 of 3 | 2.00 (0.50-3.50) | 2 |"
+         "last": 4.6e6, "target": 0.1, "successes": 10, "episodes": 50},
+        {"run": run.path, "object": "o", "left": None, "top": None, "first": 0.1e6,
+         "last": 4.6e6, "target": 0.03, "successes": None, "episodes": None}])
+    assert summary[3] == "| run | o | by 0.50 | 1.00 | 0.20 | 40/50 |"
+    assert summary[5] == "| run | o | not by 4.60 | — | 0.03 | — |"
+    assert summary[9] == "| o | 3 of 4 | 2.00 (0.50-3.50) | 2 |"
+    # by when they left: 3.5 falls after the last edge; the pair not evaluated is left out
+    assert summary[-2:] == ["| 0-2.5 | 2 | 35 (30-40) |", "| after 3.5 | 1 | 10 (10-10) |"]
     with pytest.raises(SystemExit, match="no object 'builtin_mug'"):
         object_curriculum.main([str(run.path), "--left", "--objects", "builtin_mug"])
 
@@ -675,3 +684,33 @@ def test_run_status_tables_each_run_where_it_stands(tmp_path: Path, capsys) -> N
     assert lines[3] == "| sq [lr=0.0003] | 0 | 0.20 of 1.00 | 2 | not recorded | **0.700** |"
     with pytest.raises(SystemExit, match="run_status: .*none"):
         status.main([str(tmp_path / "none")])
+
+
+def test_object_correlation_ranks_successes_across_runs(tmp_path: Path) -> None:
+    """scripts/object_correlation.py: Spearman's rho of two objects' evaluation successes over
+    the runs (+1 where they rise together, -1 against each other, "—" for a constant object);
+    a run without an evaluation, or without an object, is a one-line error."""
+    object_correlation = script("scripts", "object_correlation")
+    counts = {"a": (3, 40, 7), "b": (10, 2, 9), "c": (5, 30, 45)}  # knife, plate, dice
+    runs = []
+    for name, (knife, plate, dice) in counts.items():
+        (tmp_path / name / "eval").mkdir(parents=True)
+        (tmp_path / name / "eval" / "per_object.csv").write_text(
+            "object,episodes,successes,success_rate\n"
+            f"knife,50,{knife},0\nplate,50,{plate},0\ndice,50,{dice},0\ncube,50,50,1\n")
+        runs.append(str(tmp_path / name))
+    lines = object_correlation.main([*runs, "--objects", "knife,dice,plate,cube"])
+    assert lines[2:5] == ["| a | 3 | 7 | 40 | 50 |", "| b | 10 | 9 | 2 | 50 |",
+                          "| c | 5 | 45 | 30 | 50 |"]
+    # knife ranks a<c<b, dice a<b<c: rho 0.5; plate b<c<a against knife: -1
+    assert lines[-4:] == ["| knife | +1.00 | +0.50 | -1.00 | — |",
+                          "| dice | +0.50 | +1.00 | -0.50 | — |",
+                          "| plate | -1.00 | -0.50 | +1.00 | — |",
+                          "| cube | — | — | — | — |"]
+    with pytest.raises(SystemExit, match="no mug; its objects"):
+        object_correlation.main([*runs, "--objects", "knife,mug"])
+    (tmp_path / "d").mkdir()
+    with pytest.raises(SystemExit, match="per_object.csv: missing; evaluate"):
+        object_correlation.main([*runs, str(tmp_path / "d"), "--objects", "knife,dice"])
+    with pytest.raises(SystemExit):
+        object_correlation.main([*runs[:2], "--objects", "knife,dice"])  # two runs: too few
