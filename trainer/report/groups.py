@@ -23,8 +23,6 @@ def group_label(key: GroupKey) -> str:
     return view if task == "lift" else f"{task}-{view}"
 
 
-
-
 GROUP_FIELDS = frozenset({
     "env.task", "env.representation", "env.context", "env.bin.num_objects", "env.reward.kind",
     "env.robot.kind",

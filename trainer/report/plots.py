@@ -22,8 +22,7 @@ from trainer.report.groups import (
 from trainer.report.runs import Run
 
 CURVE_POINTS = 200
-
-
+"""Points of the common env-step (or minute) grid the seeds' curves are interpolated onto."""
 
 
 def pyplot() -> Any:

@@ -114,8 +114,6 @@ class Run:
         return float(self.env_steps[-1]) / seconds if seconds > 0 else math.nan
 
 
-
-
 def load_run(path: str | Path, eval_dir: str = "eval") -> Run:
     """Read a run directory, its evaluation from the folder ``eval_dir`` in it (``trainer eval
     --out``); raise TrainerError naming the file and the fix if it is unusable."""
@@ -390,8 +388,6 @@ def read_per_object(path: Path) -> dict[str, tuple[int, int]]:
     if not result:
         raise TrainerError(f"{path}: no objects; {fix}")
     return result
-
-
 
 
 def steps_to_reach(run: Run, threshold: float) -> tuple[float, float]:

@@ -20,11 +20,8 @@ from trainer.report.runs import Run, final_success, relative_to, steps_to_reach
 
 THRESHOLDS = (0.9, 0.95)
 """Table II's success rates (the paper's); ``trainer report --thresholds`` picks others."""
-
-
 DASH = "—"
-
-
+"""What a table cell holds where there is no value."""
 WORST = 10
 """Objects listed per arm in the report's worst-objects table (the paper's all-78 layout names
 its worst ten)."""
@@ -118,8 +115,6 @@ def upside_down_table(runs: Sequence[Run]) -> str:
             cells.append(f"{every:.2f} / {face_up} ({share:.0%} face up)")
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
-
-
 
 
 def mean_std(values: Sequence[float], fmt: str = ".2f") -> str:
