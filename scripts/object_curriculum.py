@@ -15,8 +15,10 @@ h_bar) with their evaluation: results/cpu-comparison-2026-11-29/ (2026-11-30) fo
 objects evaluated at 0.2 m by whether training had moved them off the first rung.
 
 ``--left`` reads the CSV the first form wrote into each run (``RUN_DIR/curriculum.csv``: the
-history, which outlives the checkpoints it was read from) and says when each object's target
-first left the first rung, in env steps, with the summary per object over the runs.
+history, which outlives the checkpoints it was read from) and says, in env steps, when each
+object's target first left the first rung and when it reached h_bar, beside the evaluation;
+then per object over the runs, and the evaluated pairs grouped by when they left (``--edges``):
+results/cpu-comparison-2026-11-29/first-rung-timing.md (2026-11-30).
 
 (``trainer report`` plots the run's mean target from metrics.csv; this is the per-object view,
 e.g. results/cpu-table1-together-2026-11-26/.)
@@ -145,8 +147,12 @@ def left_rows(run_dirs: list[Path], objects: list[str] | None = None) -> list[di
         reward = RunDir(run_dir).load_config().env.reward
         per_object = run_dir / "eval" / "per_object.csv"
         evaluated = read_per_object(per_object) if per_object.is_file() else {}
-        with open(path, newline="") as handle:
-            rows = [{k: float(v) for k, v in row.items()} for row in csv.DictReader(handle)]
+        try:
+            with open(path, newline="") as handle:
+                rows = [{k: float(v) for k, v in row.items()} for row in csv.DictReader(handle)]
+        except (OSError, UnicodeDecodeError, csv.Error, TypeError, ValueError) as err:
+            raise TrainerError(f"{path}: unreadable ({err}); write it again from the run's "
+                               "checkpoints") from None
         if not rows:
             raise TrainerError(f"{path}: no rows; write it again from the run's checkpoints")
         names = [k for k in rows[0] if k not in ("iteration", "env_steps", "minutes")

@@ -232,6 +232,9 @@ def test_object_curriculum_reads_each_kept_checkpoint(builtin_data: Config, tmp_
     assert summary[-2:] == ["| 0-2.5 | 2 | 35 (30-40) |", "| after 3.5 | 1 | 10 (10-10) |"]
     with pytest.raises(SystemExit, match="no object 'builtin_mug'"):
         object_curriculum.main([str(run.path), "--left", "--objects", "builtin_mug"])
+    (run.path / "curriculum.csv").write_text(history + "60,600,6,high,0.5,0.03,0.1\n")
+    with pytest.raises(SystemExit, match="curriculum.csv: unreadable"):
+        object_curriculum.main([str(run.path), "--left"])
 
     plain = tmp_path / "plain"
     plain.mkdir()
