@@ -72,20 +72,27 @@ def rows_of(run_dir: Path, last_only: bool = False) -> tuple[list[str], list[dic
     return names, [out[i] for i in sorted(out)]
 
 
+def evaluation(run_dir: Path) -> dict[str, tuple[int, int]]:
+    """The run's ``trainer eval`` per object: name -> (episodes, successes); empty where the run
+    was not evaluated (no ``eval/per_object.csv``)."""
+    from trainer.report import read_per_object
+
+    path = run_dir / "eval" / "per_object.csv"
+    return read_per_object(path) if path.is_file() else {}
+
+
 def final_rows(run_dirs: list[Path], objects: list[str] | None = None) -> list[dict]:
     """Per run and object (the run's, or ``objects``): the last checkpoint's target (m) and held
     rate at it, the first rung's target (``reward.h_bar_start``), the task's ``h_bar``, and the
     evaluation's successes and episodes (``eval/per_object.csv``; None where not evaluated)."""
     from trainer.errors import TrainerError
-    from trainer.report import read_per_object
     from trainer.training.run_dir import RunDir
 
     out = []
     for run_dir in run_dirs:
         names, rows = rows_of(run_dir, last_only=True)
         reward = RunDir(run_dir).load_config().env.reward
-        per_object = run_dir / "eval" / "per_object.csv"
-        evaluated = read_per_object(per_object) if per_object.is_file() else {}
+        evaluated = evaluation(run_dir)
         for name in objects or names:
             if name not in names:
                 raise TrainerError(f"{run_dir}: no object {name!r}; its objects: "
@@ -134,7 +141,6 @@ def left_rows(run_dirs: list[Path], objects: list[str] | None = None) -> list[di
     none), ``target``, the last row's target (m), and ``successes`` and ``episodes`` of the
     run's evaluation (``eval/per_object.csv``; None where not evaluated)."""
     from trainer.errors import TrainerError
-    from trainer.report import read_per_object
     from trainer.training.run_dir import RunDir
 
     lacking = [str(d) for d in run_dirs if not (d / "curriculum.csv").is_file()]
@@ -145,8 +151,7 @@ def left_rows(run_dirs: list[Path], objects: list[str] | None = None) -> list[di
     for run_dir in run_dirs:
         path = run_dir / "curriculum.csv"
         reward = RunDir(run_dir).load_config().env.reward
-        per_object = run_dir / "eval" / "per_object.csv"
-        evaluated = read_per_object(per_object) if per_object.is_file() else {}
+        evaluated = evaluation(run_dir)
         try:
             with open(path, newline="") as handle:
                 rows = [{k: float(v) for k, v in row.items()} for row in csv.DictReader(handle)]
@@ -182,14 +187,14 @@ def left_table(rows: list[dict], edges: tuple[float, ...] = (2.5, 3.5)) -> list[
             return f"not by {r['last'] / 1e6:.2f}"
         return f"{'by ' if r['left'] == r['first'] else ''}{r['left'] / 1e6:.2f}"
 
-    def evaluation(r: dict) -> str:
+    def successes(r: dict) -> str:
         return "—" if r["successes"] is None else f"{r['successes']}/{r['episodes']}"
 
     lines = ["| run | object | left the first rung (M env steps) | at h_bar (M env steps) | "
              "target at the last row (m) | eval successes |", "|---|---|---:|---:|---:|---:|"]
     lines += [f"| {r['run'].name} | {r['object']} | {when(r)} | "
               f"{'—' if r['top'] is None else format(r['top'] / 1e6, '.2f')} | "
-              f"{r['target']:.2f} | {evaluation(r)} |" for r in rows]
+              f"{r['target']:.2f} | {successes(r)} |" for r in rows]
     lines += ["", "| object | runs that left it | when (M env steps): median (range) | runs at "
               "h_bar |", "|---|---:|---|---:|"]
     for name in dict.fromkeys(r["object"] for r in rows):
