@@ -45,19 +45,24 @@ for ARM in "$@"; do
   NAME=cmp-$ARM
   if [ -n "${EXTEND_TO:-}" ]; then
     NAME=ext-$ARM
-    # bbox seed 0 is the run whose env steps set the budget (results/README.md)
+    # bbox seed 0 is the run whose env steps set the budget (the comparison's README)
     FROM=$HERE/runs/cmp-$ARM
     [ "$ARM" = bbox-sdf-s0 ] && [ ! -d "$FROM" ] && FROM=results/cpu-together-starts50-2026-11-27/run
     if [ ! -d "$HERE/runs/$NAME" ]; then
       if [ ! -f "$FROM/eval/per_object.csv" ] || [ ! -f "$FROM/checkpoints/last.pt" ]; then
         echo "$ARM: $FROM is not a run evaluated at the budget: run the arm first" >&2; exit 2
       fi
-      mkdir -p "$HERE/runs/$NAME"
-      (cd "$FROM" && tar -c --exclude='./eval*' --exclude='./curriculum.*' .) \
-        | tar -x -C "$HERE/runs/$NAME"
+      # Copied under a temporary name and renamed: an interrupted copy never looks like a run.
+      copy() {  # copy FOLDER TO [TAR EXCLUDES...]
+        local from=$1 to=$2; shift 2
+        rm -rf "$to.partial" && mkdir -p "$to.partial" \
+          && (cd "$from" && tar -c "$@" .) | tar -x -C "$to.partial" && mv "$to.partial" "$to"
+      }
+      copy "$FROM" "$HERE/runs/$NAME" --exclude='./eval*' --exclude='./curriculum.*' \
+        || { echo "$ARM: copying $FROM to $HERE/runs/$NAME failed" >&2; exit 1; }
       if [ -d "$RUNS/cmp-$ARM/checkpoints" ] && [ ! -d "$RUNS/$NAME" ]; then
-        mkdir -p "$RUNS/$NAME"
-        (cd "$RUNS/cmp-$ARM" && tar -c --exclude='./eval*' .) | tar -x -C "$RUNS/$NAME"
+        copy "$RUNS/cmp-$ARM" "$RUNS/$NAME" --exclude='./eval*' \
+          || { echo "$ARM: copying $RUNS/cmp-$ARM to $RUNS/$NAME failed" >&2; exit 1; }
       fi
     fi
   fi
