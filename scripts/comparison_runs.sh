@@ -34,6 +34,13 @@ RUNS=${RUNS_DIR:-runs}
 if [ -n "${EXTEND_TO:-}" ] && ! [[ $EXTEND_TO =~ ^[0-9]+$ ]]; then
   echo "EXTEND_TO=$EXTEND_TO: a number of env steps (e.g. 6900000)" >&2; exit 2
 fi
+# copy FOLDER TO [TAR EXCLUDES...]: under a temporary name, then renamed, so that an
+# interrupted copy never looks like a run to continue.
+copy() {
+  local from=$1 to=$2; shift 2
+  rm -rf "$to.partial" && mkdir -p "$to.partial" \
+    && (cd "$from" && tar -c "$@" .) | tar -x -C "$to.partial" && mv "$to.partial" "$to"
+}
 for ARM in "$@"; do
   IFS=- read -r REPR REWARD SEED VARIANT <<< "$ARM"
   case "${VARIANT:-}" in
@@ -52,12 +59,6 @@ for ARM in "$@"; do
       if [ ! -f "$FROM/eval/per_object.csv" ] || [ ! -f "$FROM/checkpoints/last.pt" ]; then
         echo "$ARM: $FROM is not a run evaluated at the budget: run the arm first" >&2; exit 2
       fi
-      # Copied under a temporary name and renamed: an interrupted copy never looks like a run.
-      copy() {  # copy FOLDER TO [TAR EXCLUDES...]
-        local from=$1 to=$2; shift 2
-        rm -rf "$to.partial" && mkdir -p "$to.partial" \
-          && (cd "$from" && tar -c "$@" .) | tar -x -C "$to.partial" && mv "$to.partial" "$to"
-      }
       copy "$FROM" "$HERE/runs/$NAME" --exclude='./eval*' --exclude='./curriculum.*' \
         || { echo "$ARM: copying $FROM to $HERE/runs/$NAME failed" >&2; exit 1; }
       if [ -d "$RUNS/cmp-$ARM/checkpoints" ] && [ ! -d "$RUNS/$NAME" ]; then
