@@ -10,7 +10,8 @@ training curve in blocks of env steps), scripts/eval_upright.py (an evaluation s
 the targets start), scripts/grasp_offset.py (where a policy holds each object) and
 scripts/bin_diagnosis.py (each target's best scripted grasp in clutter, and why it fails),
 scripts/video_frames.py (a video's contact sheet), scripts/paired_evals.py (two evaluations
-of the same episodes compared), scripts/run_status.py (where each run stands) and
+of the same episodes compared), scripts/budget_gains.py (each run extended to a larger budget
+against itself at the budget), scripts/run_status.py (where each run stands) and
 scripts/object_correlation.py (which objects succeed together across runs)."""
 
 from __future__ import annotations
@@ -628,6 +629,37 @@ def test_paired_evals_compares_the_same_episodes_by_object(tmp_path: Path) -> No
     done = CliRunner().invoke(paired.main, [str(base), str(fewer)])
     assert done.exit_code == 1 and "a: 20 episodes against 10: not the same episodes" in \
         done.output
+
+
+def test_budget_gains_pairs_each_extension_with_its_run_at_the_budget(tmp_path: Path) -> None:
+    """Each evaluated ext-ARM is set against cmp-ARM (or the run --base names) on the same
+    episodes; an extension still running is listed, not tabled; a missing base is one line."""
+    from click.testing import CliRunner
+
+    gains = script("scripts", "budget_gains")
+    runs = tmp_path / "runs"
+    for name, rows in {"cmp-sq-sdf-s0": {"a": (20, 10), "b": (20, 4)},
+                       "ext-sq-sdf-s0": {"a": (20, 14), "b": (20, 6)},
+                       "elsewhere": {"a": (20, 20), "b": (20, 0)},
+                       "ext-bbox-sdf-s0": {"a": (20, 20), "b": (20, 2)}}.items():
+        (runs / name).mkdir(parents=True)
+        _eval_folder(runs / name / "eval", rows)
+    (runs / "ext-com-sdf-s1").mkdir()  # copied, not evaluated yet
+    (runs / "ext-sdf-sdf-s0.partial").mkdir()  # an interrupted copy: not a run
+    done = CliRunner().invoke(gains.main, [str(runs), "--objects", "b",
+                                           "--base", f"bbox-sdf-s0={runs / 'elsewhere'}"])
+    assert done.exit_code == 0, done.output
+    lines = done.output.splitlines()
+    assert lines[0] == "| run | at the budget | extended | by object (paired) | b |"
+    # bbox: a +0, b +0.1: mean +0.05 ± 0.05, inside two standard errors
+    assert lines[2] == ("| bbox-sdf-s0 | 0.500 | **0.550** | +0.050 ± 0.050 (1 up, 0 down; noise) "
+                        "| 0 -> 2 |")
+    # sq: +0.2 and +0.1, mean +0.15 ± 0.05: beyond
+    assert lines[3] == "| sq-sdf-s0 | 0.350 | **0.500** | +0.150 ± 0.050 (2 up, 0 down) | 4 -> 6 |"
+    assert lines[-1] == "not evaluated yet: com-sdf-s1"
+    done = CliRunner().invoke(gains.main, [str(runs)])
+    assert done.exit_code == 1
+    assert "bbox-sdf-s0: " in done.output and "--base bbox-sdf-s0=RUN" in done.output
 
 
 def test_paired_evals_folds_never_reached_into_never_lifted_beside_an_older_eval(
