@@ -21,12 +21,7 @@ from pathlib import Path
 import click
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from paired_evals import gain, read_eval  # noqa: E402  (a script beside this one)
-
-
-def held(rates: dict[str, tuple[int, int]]) -> float:
-    """The held rate over all the episodes of one evaluation."""
-    return sum(s for _, s in rates.values()) / sum(n for n, _ in rates.values())
+from paired_evals import gain, held_rate, is_noise, read_eval  # noqa: E402  (a script beside this one)
 
 
 def rows(runs: Path, bases: dict[str, Path], objects: list[str]) -> tuple[list[str], list[str]]:
@@ -50,10 +45,11 @@ def rows(runs: Path, bases: dict[str, Path], objects: list[str]) -> tuple[list[s
         base, _ = read_eval(base_run / "eval")
         other, _ = read_eval(folder / "eval")
         mean, error, up, down, _ = gain(base, other)
-        noise = "; noise" if abs(mean) <= 2 * error else ""
+        noise = "; noise" if is_noise(mean, error) else ""
         cells = [f"{base.get(o, (0, 0))[1]} -> {other.get(o, (0, 0))[1]}" for o in objects]
-        lines.append(f"| {arm} | {held(base):.3f} | **{held(other):.3f}** | {mean:+.3f} ± "
-                     f"{error:.3f} ({up} up, {down} down{noise}) | " + " | ".join(cells) + " |")
+        lines.append(f"| {arm} | {held_rate(base):.3f} | **{held_rate(other):.3f}** | "
+                     f"{mean:+.3f} ± {error:.3f} ({up} up, {down} down{noise}) | "
+                     + " | ".join(cells) + " |")
     return lines, running
 
 

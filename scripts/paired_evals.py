@@ -64,6 +64,16 @@ def gain(base: dict[str, tuple[int, int]],
     return (mean, spread, sum(d > 0 for d in diffs), sum(d < 0 for d in diffs), len(diffs))
 
 
+def held_rate(rates: dict[str, tuple[int, int]]) -> float:
+    """The held rate over all the episodes of one evaluation (``read_eval``'s rates)."""
+    return sum(s for _, s in rates.values()) / sum(n for n, _ in rates.values())
+
+
+def is_noise(mean: float, error: float) -> bool:
+    """A gain within two standard errors: noise at this sample size."""
+    return abs(mean) <= 2 * error
+
+
 @click.command(context_settings={"help_option_names": ["-h", "--help"]})
 @click.argument("evals", nargs=-1, required=True,
                 type=click.Path(path_type=Path, file_okay=False))
@@ -80,13 +90,13 @@ def main(evals: tuple[Path, ...]) -> None:
     click.echo("|---|---:|---:|" + "---:|" * len(kept[1:]))
     for folder, (rates, endings) in zip(evals, read, strict=True):
         episodes = sum(n for n, _ in rates.values())
-        held = sum(s for _, s in rates.values()) / episodes
+        held = held_rate(rates)
         cells = [f"{endings[e] / episodes:.3f}" for e in kept[1:]]
         click.echo(f"| {folder} | {episodes} | {held:.3f} | " + " | ".join(cells) + " |")
     base = read[0][0]
     for folder, (rates, _) in zip(evals[1:], read[1:], strict=True):
         mean, error, up, down, count = gain(base, rates)
-        verdict = "inside the noise" if abs(mean) <= 2 * error else "beyond two standard errors"
+        verdict = "inside the noise" if is_noise(mean, error) else "beyond two standard errors"
         click.echo(f"{folder} over {evals[0]}: {mean:+.3f} ± {error:.3f} by object ({count} "
                    f"objects: {up} up, {down} down): {verdict}")
 
